@@ -1,0 +1,60 @@
+"""The camera driver: USB transport, wire protocol, demodulation and captures.
+
+Layers, bottom up: `transport` (pyusb) → `protocol` (bytes) → `stream` (frames from bytes)
+→ `demod` (taps to range and points) → `camera` / `capture` (the things you open).
+"""
+
+from tofcut.driver.calibration import Calibration, parse_calibration, pixel_rays
+from tofcut.driver.camera import Camera, list_cameras
+from tofcut.driver.capture import CaptureReader, CaptureWriter, capture_metadata
+from tofcut.driver.config import CameraConfig, TriggerMode
+from tofcut.driver.demod import Optics, demodulate
+from tofcut.driver.errors import (
+    AccessDenied,
+    CaptureError,
+    ConfigError,
+    DeviceBusy,
+    DeviceError,
+    DeviceNotFound,
+    DeviceTimeout,
+    Disconnected,
+    ProtocolError,
+    RequestRejected,
+    TofcutError,
+)
+from tofcut.driver.frames import Frame, RawFrame
+from tofcut.driver.protocol import DeviceInfo, FrameHeader, Register
+from tofcut.driver.stream import FrameParser, StreamStats
+
+__all__ = [
+    "AccessDenied",
+    "Calibration",
+    "Camera",
+    "CameraConfig",
+    "CaptureError",
+    "CaptureReader",
+    "CaptureWriter",
+    "ConfigError",
+    "DeviceBusy",
+    "DeviceError",
+    "DeviceInfo",
+    "DeviceNotFound",
+    "DeviceTimeout",
+    "Disconnected",
+    "Frame",
+    "FrameHeader",
+    "FrameParser",
+    "Optics",
+    "ProtocolError",
+    "RawFrame",
+    "Register",
+    "RequestRejected",
+    "StreamStats",
+    "TofcutError",
+    "TriggerMode",
+    "capture_metadata",
+    "demodulate",
+    "list_cameras",
+    "parse_calibration",
+    "pixel_rays",
+]

@@ -1,0 +1,236 @@
+"""Capture files (`.tofcap`, spec §8): the wire stream on disk, replayed through the parser.
+
+A capture cut short by a killed recorder stays readable up to its last whole record;
+the reader reports how many bytes it skipped at the end.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+from typing import Any, BinaryIO
+
+from tofcut.driver.calibration import Calibration, parse_calibration
+from tofcut.driver.demod import Optics, demodulate
+from tofcut.driver.errors import CaptureError
+from tofcut.driver.frames import Frame, RawFrame
+from tofcut.driver.protocol import (
+    CALIB_HEADER_SIZE,
+    MAX_SENSOR_SIDE,
+    DeviceInfo,
+)
+from tofcut.driver.stream import FrameParser, StreamStats
+
+MAGIC = b"TOFCAP01"
+MAX_METADATA = 1 << 20
+"""Metadata larger than this is damage, not metadata."""
+_U32 = struct.Struct("<I")
+_U64 = struct.Struct("<Q")
+
+
+@dataclass(frozen=True)
+class CaptureInfo:
+    """What a capture says about the camera it was recorded from."""
+
+    metadata: dict[str, Any]
+    calibration_block: bytes
+
+    @property
+    def serial(self) -> str:
+        return str(self.metadata["serial"])
+
+    @property
+    def width(self) -> int:
+        return int(self.metadata["width"])
+
+    @property
+    def height(self) -> int:
+        return int(self.metadata["height"])
+
+
+def capture_metadata(
+    info: DeviceInfo, registers: dict[str, int], **extra: Any
+) -> dict[str, Any]:
+    """The metadata a capture needs (spec §8), plus anything the recorder wants to keep."""
+    return {
+        "serial": info.serial_text,
+        "firmware": info.firmware,
+        "protocol": info.protocol,
+        "width": info.width,
+        "height": info.height,
+        "registers": registers,
+        **extra,
+    }
+
+
+class CaptureWriter:
+    """Writes records as frames arrive; each record is flushed so a kill loses at most one."""
+
+    def __init__(self, path: str | os.PathLike[str], metadata: dict[str, Any], calib: bytes):
+        self.path = Path(path)
+        self.frames = 0
+        self._file: BinaryIO = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        meta = json.dumps(metadata).encode()
+        self._file.write(MAGIC + _U32.pack(len(meta)) + meta + _U32.pack(len(calib)) + calib)
+        self._file.flush()
+
+    def write(self, raw: RawFrame) -> None:
+        self._file.write(_U64.pack(raw.host_time_ns) + raw.wire)
+        self._file.flush()
+        self.frames += 1
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._file.close()
+
+    def __enter__(self) -> CaptureWriter:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
+    data = f.read(n)
+    if len(data) != n:
+        raise CaptureError(f"capture ends inside its {what}")
+    return data
+
+
+class CaptureReader:
+    """A recorded camera: same `info`, `calibration`, `raw_frames()`, `frames()` as Camera."""
+
+    def __init__(self, path: str | os.PathLike[str], *, amplitude_threshold: float = 0.0):
+        self.path = Path(path)
+        self.amplitude_threshold = amplitude_threshold
+        self.truncated_bytes = 0
+        """Bytes at the end that did not make a whole record (a recorder killed mid-write)."""
+        self.stats = StreamStats()
+        with open(self.path, "rb") as f:
+            self.capture = self._read_head(f)
+            self._records_start = f.tell()
+        meta = self.capture.metadata
+        width, height = self.capture.width, self.capture.height
+        self.calibration: Calibration = parse_calibration(
+            self.capture.calibration_block, width, height
+        )
+        self.info = DeviceInfo(
+            protocol=int(meta["protocol"]),
+            firmware=int(meta["firmware"]),
+            serial=int(str(meta["serial"]), 16),
+            width=width,
+            height=height,
+            calibration_size=len(self.capture.calibration_block),
+            max_fps=int(meta.get("max_fps", 0)),
+        )
+        self.optics = Optics.from_calibration(self.calibration)
+
+    @staticmethod
+    def _read_head(f: BinaryIO) -> CaptureInfo:
+        if f.read(len(MAGIC)) != MAGIC:
+            raise CaptureError("not a .tofcap file (bad magic)")
+        (meta_len,) = _U32.unpack(_read_exact(f, 4, "metadata length"))
+        if meta_len > MAX_METADATA:
+            raise CaptureError(f"metadata length {meta_len} is implausible")
+        try:
+            meta = json.loads(_read_exact(f, meta_len, "metadata").decode())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise CaptureError(f"metadata is not UTF-8 JSON: {exc}") from exc
+        if not isinstance(meta, dict):
+            raise CaptureError("metadata is not a JSON object")
+        for key, kind in (("serial", str), ("firmware", int), ("protocol", int)):
+            if not isinstance(meta.get(key), kind):
+                raise CaptureError(f"metadata lacks {key!r} ({kind.__name__})")
+        for key in ("width", "height"):
+            value = meta.get(key)
+            if not isinstance(value, int) or not 0 < value <= MAX_SENSOR_SIDE:
+                raise CaptureError(f"metadata {key!r} is missing or implausible: {value!r}")
+        if not isinstance(meta.get("registers"), dict):
+            raise CaptureError("metadata lacks 'registers' (object)")
+        try:
+            int(meta["serial"], 16)
+        except ValueError:
+            raise CaptureError(f"serial {meta['serial']!r} is not hexadecimal") from None
+        (calib_len,) = _U32.unpack(_read_exact(f, 4, "calibration length"))
+        expected = CALIB_HEADER_SIZE + 2 * meta["width"] * meta["height"]
+        if calib_len != expected:
+            raise CaptureError(f"calibration length {calib_len} != {expected} for the sensor")
+        calib = _read_exact(f, calib_len, "calibration block")
+        return CaptureInfo(meta, calib)
+
+    @property
+    def serial(self) -> str:
+        return self.info.serial_text
+
+    def raw_frames(self, count: int | None = None) -> Iterator[RawFrame]:
+        """Every good frame in order; damaged records are dropped and counted in `stats`."""
+        self.stats = StreamStats()
+        self.truncated_bytes = 0
+        parser = FrameParser(self.info, self.stats)
+        frame_size = self.info.frame_size
+        delivered = 0
+        with open(self.path, "rb") as f:
+            f.seek(self._records_start)
+            while count is None or delivered < count:
+                stamp = f.read(_U64.size)
+                if not stamp:
+                    break
+                if len(stamp) < _U64.size:
+                    self.truncated_bytes = len(stamp)
+                    break
+                (host_ns,) = _U64.unpack(stamp)
+                record = self._read_record(f, frame_size)
+                if record is None:
+                    self.truncated_bytes += _U64.size
+                    break
+                for raw in parser.feed(record, host_ns):
+                    yield raw
+                    delivered += 1
+                    if count is not None and delivered >= count:
+                        break
+                parser.reset()
+
+    def _read_record(self, f: BinaryIO, frame_size: int) -> bytes | None:
+        """One record's frame bytes, or None (with `truncated_bytes` set) at a cut-short end.
+
+        Every record holds one frame of the sensor's size; a size read from the record's
+        own header is never trusted, so damage there cannot make us read too much.
+        """
+        data = f.read(frame_size)
+        if len(data) < frame_size:
+            self.truncated_bytes = len(data)
+            return None
+        return data
+
+    def frames(self, count: int | None = None) -> Iterator[Frame]:
+        for raw in self.raw_frames(count):
+            yield demodulate(raw, self.optics, self.amplitude_threshold)
+
+    def __len__(self) -> int:
+        """Whole records in the file (good or damaged)."""
+        size = self.path.stat().st_size - self._records_start
+        return size // (_U64.size + self.info.frame_size)
+
+    def close(self) -> None:
+        """Nothing is held open between reads; here for symmetry with Camera."""
+
+    def __enter__(self) -> CaptureReader:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
