@@ -166,7 +166,10 @@ def undistort(
         dy = (j11 * fy_ - j21 * fx_) / det
         x -= dx
         y -= dy
-        if max(float(np.max(np.abs(dx), initial=0.0)), float(np.max(np.abs(dy), initial=0.0))) < tol:
+        if (
+            max(float(np.max(np.abs(dx), initial=0.0)), float(np.max(np.abs(dy), initial=0.0)))
+            < tol
+        ):
             return x, y
     raise ProtocolError("lens model does not invert: the distortion coefficients are implausible")
 

@@ -21,7 +21,7 @@ from typing import Any
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.config import CameraConfig
 from tofcut.driver.demod import Optics, demodulate
-from tofcut.driver.errors import DeviceNotFound, DeviceTimeout, ProtocolError
+from tofcut.driver.errors import ConfigError, DeviceNotFound, DeviceTimeout, ProtocolError
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.protocol import (
     FLASH_BLOCK,
@@ -53,12 +53,16 @@ def list_cameras(
 class Camera:
     """One opened camera. Not thread-safe, except that `stats` may be read from anywhere."""
 
-    def __init__(self, transport: UsbTransport, *, amplitude_threshold: float = 0.0) -> None:
+    def __init__(
+        self,
+        transport: UsbTransport,
+        *,
+        amplitude_threshold: float = 0.0,
+        read_size: int | None = None,
+    ) -> None:
         self._usb = transport
         self.amplitude_threshold = amplitude_threshold
-        self.info: DeviceInfo = parse_info(
-            transport.control_in(Request.GET_INFO, 0, 0, INFO_SIZE)
-        )
+        self.info: DeviceInfo = parse_info(transport.control_in(Request.GET_INFO, 0, 0, INFO_SIZE))
         self.calibration_block = self._read_flash()
         self.calibration: Calibration = parse_calibration(
             self.calibration_block, self.info.width, self.info.height
@@ -67,8 +71,10 @@ class Camera:
         self.stats = StreamStats()
         self._parser = FrameParser(self.info, self.stats)
         self._ready: deque[RawFrame] = deque()
-        size = -(-self.info.frame_size // MAX_PACKET) * MAX_PACKET
-        self._buffer = array.array("B", bytes(size))
+        whole = -(-self.info.frame_size // MAX_PACKET) * MAX_PACKET
+        if read_size is not None and (read_size <= 0 or read_size % MAX_PACKET):
+            raise ConfigError(f"read_size must be a positive multiple of {MAX_PACKET} bytes")
+        self._buffer = array.array("B", bytes(read_size or whole))
         self.streaming = False
 
     @classmethod
@@ -80,8 +86,12 @@ class Camera:
         vendor_id: int = VENDOR_ID,
         product_id: int = PRODUCT_ID,
         amplitude_threshold: float = 0.0,
+        read_size: int | None = None,
     ) -> Camera:
-        """Open the camera with this serial number, or the first one found."""
+        """Open the camera with this serial number, or the first one found.
+
+        `read_size` is the bulk read size (a multiple of 512); by default one whole frame.
+        """
         devices = find_devices(vendor_id=vendor_id, product_id=product_id, backend=backend)
         ids = f"{vendor_id:04x}:{product_id:04x}"
         if serial is not None:
@@ -89,7 +99,11 @@ class Camera:
         if not devices:
             which = f" with serial {serial}" if serial else ""
             raise DeviceNotFound(f"no camera {ids}{which} found")
-        return cls(UsbTransport(devices[0]), amplitude_threshold=amplitude_threshold)
+        return cls(
+            UsbTransport(devices[0]),
+            amplitude_threshold=amplitude_threshold,
+            read_size=read_size,
+        )
 
     # --- identity and registers -----------------------------------------------------------
 
@@ -136,9 +150,7 @@ class Camera:
             want = min(FLASH_BLOCK, size - n * FLASH_BLOCK)
             chunk = self._usb.control_in(Request.READ_FLASH, n, 0, FLASH_BLOCK)
             if len(chunk) != want:
-                raise ProtocolError(
-                    f"flash block {n} returned {len(chunk)} bytes, expected {want}"
-                )
+                raise ProtocolError(f"flash block {n} returned {len(chunk)} bytes, expected {want}")
             data += chunk
         return bytes(data)
 
@@ -166,9 +178,7 @@ class Camera:
             left_ms = max(1, round((deadline - time.monotonic()) * 1000.0))
             n = self._usb.read_frames(self._buffer, left_ms)
             if n:
-                self._ready.extend(
-                    self._parser.feed(memoryview(self._buffer)[:n], time.time_ns())
-                )
+                self._ready.extend(self._parser.feed(memoryview(self._buffer)[:n], time.time_ns()))
             if not self._ready and time.monotonic() >= deadline:
                 raise DeviceTimeout(f"no frame within {timeout_ms} ms")
         return self._ready.popleft()

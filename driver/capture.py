@@ -53,9 +53,7 @@ class CaptureInfo:
         return int(self.metadata["height"])
 
 
-def capture_metadata(
-    info: DeviceInfo, registers: dict[str, int], **extra: Any
-) -> dict[str, Any]:
+def capture_metadata(info: DeviceInfo, registers: dict[str, int], **extra: Any) -> dict[str, Any]:
     """The metadata a capture needs (spec §8), plus anything the recorder wants to keep."""
     return {
         "serial": info.serial_text,
@@ -63,6 +61,7 @@ def capture_metadata(
         "protocol": info.protocol,
         "width": info.width,
         "height": info.height,
+        "max_fps": info.max_fps,
         "registers": registers,
         **extra,
     }

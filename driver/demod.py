@@ -43,7 +43,7 @@ def demodulate(raw: RawFrame, optics: Optics, amplitude_threshold: float = 0.0) 
     corrected = np.mod(phase - optics.phase_offset, TWO_PI)
     scale = SPEED_OF_LIGHT / (4.0 * math.pi * mod_freq_hz(raw.header.mod_code))
     rng = corrected * scale - optics.distance_offset_m
-    valid = (raw.taps < MAX_COUNT).all(axis=0)
+    valid: npt.NDArray[np.bool_] = np.all(raw.taps < MAX_COUNT, axis=0)
     if amplitude_threshold > 0.0:
         valid &= amplitude >= amplitude_threshold
     xyz = optics.rays * rng[..., None]

@@ -166,9 +166,7 @@ def parse_info(data: bytes | bytearray | memoryview) -> DeviceInfo:
     data = bytes(data)
     if len(data) != INFO_SIZE:
         raise ProtocolError(f"GET_INFO reply is {len(data)} bytes, expected {INFO_SIZE}")
-    magic, protocol, firmware, serial, width, height, calib_size, max_fps = _INFO.unpack(
-        data[:28]
-    )
+    magic, protocol, firmware, serial, width, height, calib_size, max_fps = _INFO.unpack(data[:28])
     if magic != INFO_MAGIC:
         raise ProtocolError(f"GET_INFO magic is {magic!r}, expected {INFO_MAGIC!r}")
     (crc,) = struct.unpack("<I", data[28:])

@@ -87,9 +87,11 @@ class FrameParser:
             if len(buf) < HEADER_SIZE:
                 break
             try:
-                header = parse_header(buf)
+                header = parse_header(bytes(buf[:HEADER_SIZE]))
                 check_header(header, self.info)
             except ProtocolError:
+                header = None
+            if header is None:
                 self._damaged(1)
                 continue
             end = HEADER_SIZE + header.payload_size

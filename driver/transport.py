@@ -150,9 +150,10 @@ class UsbTransport:
 
     def read_frames(self, buffer: array.array[int], timeout_ms: int) -> int:
         """One bulk read of the frame endpoint into `buffer`; returns the bytes read."""
-        return _call(
+        n: int = _call(
             "reading frames", lambda: self._dev.read(ENDPOINT_FRAMES, buffer, timeout_ms)
         )
+        return n
 
     def close(self) -> None:
         """Release the interface and the OS handle; safe to call twice or on a vanished device."""

@@ -1,0 +1,387 @@
+"""The emulated camera's firmware: registers, flash, the frame clock, the FIFO and the bulk pipe.
+
+It knows nothing of pyusb; `tofcut.sim.usb_backend` puts it on an emulated bus. Frames are
+taken on the device's own clock (real time, or a virtual clock that runs as fast as the
+host reads); frames the host does not fetch in time overflow the FIFO and are dropped,
+leaving a gap in the sequence and the drop flag on the next frame, as the spec says.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from tofcut.driver.calibration import pack_calibration
+from tofcut.driver.protocol import (
+    FLAG_DROPPED_BEFORE,
+    FLAG_OVER_TEMPERATURE,
+    FLAG_SATURATED,
+    FLASH_BLOCK,
+    HEADER_SIZE,
+    MAX_COUNT,
+    MAX_FPS,
+    MAX_PACKET,
+    MOD_FREQ_MHZ,
+    RESET_VALUES,
+    STATUS_FIFO_OVERFLOW,
+    STATUS_OVER_TEMPERATURE,
+    STATUS_STREAMING,
+    TAPS,
+    WRITABLE_REGISTERS,
+    DeviceInfo,
+    FrameHeader,
+    Register,
+    Request,
+    crc32,
+    integration_us,
+    pack_header,
+    pack_info,
+)
+from tofcut.sim.source import Exposure, TapSource
+
+READOUT_US = 200
+"""Time between the end of one tap's integration and the start of the next."""
+FIFO_FRAMES = 4
+TRUTH_KEPT = 256
+
+
+class Stall(Exception):
+    """The device answers a control request with a STALL (the host sees EPIPE)."""
+
+
+class BulkTimeout(Exception):
+    """No data on the bulk pipe within the host's timeout."""
+
+
+class BulkOverflow(Exception):
+    """The host asked for a length that is not a whole number of packets and data overran it."""
+
+
+@dataclass
+class _Queued:
+    sequence: int
+    t0_us: int
+    flags: int
+
+
+class EmulatedCamera:
+    """One emulated SR-USB camera, fed by a scene (`TapSource`).
+
+    `realtime=False` runs the frame clock virtually: every bulk read gets the next frame at
+    once, with device timestamps as if the camera ran at its frame rate; nothing is dropped.
+    """
+
+    def __init__(
+        self,
+        source: TapSource,
+        *,
+        serial: int = 0x4000002F,
+        firmware: int = 0x0104,
+        realtime: bool = True,
+        registers: dict[Register, int] | None = None,
+        fifo_frames: int = FIFO_FRAMES,
+        monotonic: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.source = source
+        calib = source.calibration
+        self.flash = pack_calibration(calib)
+        self.info = DeviceInfo(
+            protocol=1,
+            firmware=firmware,
+            serial=serial,
+            width=calib.width,
+            height=calib.height,
+            calibration_size=len(self.flash),
+            max_fps=MAX_FPS,
+        )
+        self.realtime = realtime
+        self.fifo_frames = fifo_frames
+        self.temperature_c = 36.5
+        self.over_temperature = False
+        self._monotonic = monotonic
+        self._power_on = monotonic()
+        self._regs: dict[Register, int] = dict(RESET_VALUES)
+        self._regs.update(registers or {})
+        self._lock = threading.Condition()
+        self._streaming = False
+        self._next_seq = 0
+        self._clock_start_us = 0
+        self._clock_index = 0
+        """Frames taken on the current run of the frame clock."""
+        self._fifo: deque[_Queued] = deque()
+        self._drop_pending = False
+        self._overflow_latched = False
+        self._tx = b""
+        self._tx_pos = 0
+        self._zlp_pending = False
+        self._truth: OrderedDict[int, object] = OrderedDict()
+        self._damage: deque[str] = deque()
+        self.frames_sent = 0
+        self.frames_dropped = 0
+
+    # --- timing ---------------------------------------------------------------------------
+
+    def now_us(self) -> int:
+        """Device time: µs since power-on."""
+        return int((self._monotonic() - self._power_on) * 1e6)
+
+    @property
+    def tap_interval_us(self) -> int:
+        return integration_us(self._regs[Register.INTEGRATION]) + READOUT_US
+
+    @property
+    def frame_period_us(self) -> int:
+        """Time between frame starts: as asked, but no faster than the taps or 54 fps allow."""
+        asked = self._regs[Register.FRAME_PERIOD] * 100
+        fastest = max(TAPS * self.tap_interval_us, math.ceil(1e6 / MAX_FPS))
+        return max(asked, fastest)
+
+    # --- control requests -----------------------------------------------------------------
+
+    def control_in(self, request: int, value: int, index: int, length: int) -> bytes:
+        with self._lock:
+            if request == Request.GET_INFO and value == 0 and index == 0:
+                return pack_info(self.info)[:length]
+            if request == Request.READ_REG:
+                return self._read_register(index).to_bytes(2, "little")[:length]
+            if request == Request.READ_FLASH:
+                start = value * FLASH_BLOCK
+                if start >= len(self.flash):
+                    raise Stall(f"flash block {value} is past the end")
+                return self.flash[start : start + min(length, FLASH_BLOCK)]
+            raise Stall(f"unknown IN request 0x{request:02x}")
+
+    def control_out(self, request: int, value: int, index: int, data: bytes) -> None:
+        with self._lock:
+            if data:
+                raise Stall("OUT requests of this device carry no data stage")
+            if request == Request.WRITE_REG:
+                self._write_register(index, value)
+            elif request == Request.STREAM and index == 0 and value in (0, 1):
+                self._set_streaming(value == 1)
+            elif request == Request.TRIGGER and value == 0 and index == 0:
+                if self._regs[Register.TRIGGER_MODE] != 1 or not self._streaming:
+                    raise Stall("TRIGGER needs trigger mode 1 and a started stream")
+                self._take_frame(self.now_us())
+                self._lock.notify_all()
+            else:
+                raise Stall(f"unknown OUT request 0x{request:02x}")
+
+    def _read_register(self, address: int) -> int:
+        if address == Register.STATUS:
+            status = STATUS_STREAMING if self._streaming else 0
+            if self.over_temperature:
+                status |= STATUS_OVER_TEMPERATURE
+            if self._overflow_latched:
+                status |= STATUS_FIFO_OVERFLOW
+                self._overflow_latched = False
+            return status
+        if address == Register.TEMPERATURE:
+            return round(self.temperature_c * 100) & 0xFFFF
+        try:
+            return self._regs[Register(address)]
+        except ValueError:
+            raise Stall(f"no register 0x{address:02x}") from None
+
+    def _write_register(self, address: int, value: int) -> None:
+        try:
+            register = Register(address)
+        except ValueError:
+            raise Stall(f"no register 0x{address:02x}") from None
+        if register not in WRITABLE_REGISTERS:
+            raise Stall(f"register {register.name} is read-only")
+        valid = {
+            Register.MOD_FREQ: value in MOD_FREQ_MHZ,
+            Register.INTEGRATION: 0 <= value <= 255,
+            Register.FRAME_PERIOD: True,
+            Register.TRIGGER_MODE: value in (0, 1, 2),
+        }[register]
+        if not valid:
+            raise Stall(f"value {value} is out of range for {register.name}")
+        self._regs[register] = value
+        if self._streaming and register in (Register.FRAME_PERIOD, Register.INTEGRATION):
+            self._restart_clock()
+
+    def _set_streaming(self, on: bool) -> None:
+        if on and not self._streaming:
+            self._streaming = True
+            self._fifo.clear()
+            self._restart_clock()
+        elif not on:
+            self._streaming = False
+            self._fifo.clear()
+            self._tx = b""
+            self._tx_pos = 0
+            self._zlp_pending = False
+        self._lock.notify_all()
+
+    def _restart_clock(self) -> None:
+        self._clock_start_us = self.now_us()
+        self._clock_index = 0
+
+    # --- the frame clock and the FIFO -----------------------------------------------------
+
+    def _take_frame(self, t0_us: int) -> None:
+        """The sensor takes a frame: into the FIFO if there is room, else it is dropped."""
+        seq = self._next_seq
+        self._next_seq = (seq + 1) & 0xFFFFFFFF
+        if len(self._fifo) >= self.fifo_frames:
+            self.frames_dropped += 1
+            self._drop_pending = True
+            self._overflow_latched = True
+            return
+        flags = FLAG_DROPPED_BEFORE if self._drop_pending else 0
+        self._drop_pending = False
+        self._fifo.append(_Queued(seq, t0_us, flags))
+
+    def _free_run_due(self) -> bool:
+        return self._streaming and self._regs[Register.TRIGGER_MODE] == 0
+
+    def _catch_up(self) -> None:
+        """Take every free-run frame whose exposure has ended by now."""
+        if not self._free_run_due():
+            return
+        period = self.frame_period_us
+        duration = TAPS * self.tap_interval_us
+        if not self.realtime:
+            if not self._fifo:
+                self._take_frame(self._clock_start_us + self._clock_index * period)
+                self._clock_index += 1
+            return
+        done = (self.now_us() - duration - self._clock_start_us) // period + 1
+        while self._clock_index < done and len(self._fifo) < self.fifo_frames:
+            self._take_frame(self._clock_start_us + self._clock_index * period)
+            self._clock_index += 1
+        dropped = done - self._clock_index
+        if dropped > 0:  # the FIFO is full: the sensor's later frames are lost, all at once
+            self._next_seq = (self._next_seq + dropped) & 0xFFFFFFFF
+            self._clock_index = done
+            self.frames_dropped += dropped
+            self._drop_pending = self._overflow_latched = True
+
+    def _next_due_us(self) -> int | None:
+        if not self._free_run_due():
+            return None
+        t0 = self._clock_start_us + self._clock_index * self.frame_period_us
+        return t0 + TAPS * self.tap_interval_us
+
+    def pulse_trigger_input(self) -> None:
+        """A pulse on the hardware trigger input (trigger mode 2)."""
+        with self._lock:
+            if self._streaming and self._regs[Register.TRIGGER_MODE] == 2:
+                self._take_frame(self.now_us())
+                self._lock.notify_all()
+
+    # --- faults, injected by tests ---------------------------------------------------------
+
+    DAMAGE_KINDS = ("payload", "header", "truncate")
+
+    def damage_next(self, kind: str = "payload", count: int = 1) -> None:
+        """Damage the next `count` frames on the wire: a flipped payload or header byte, or a
+        frame cut short (its transfer ends early, as when packets are lost)."""
+        if kind not in self.DAMAGE_KINDS:
+            raise ValueError(f"damage kind {kind!r} is not one of {self.DAMAGE_KINDS}")
+        with self._lock:
+            self._damage.extend([kind] * count)
+
+    def _apply_damage(self, wire: bytes) -> bytes:
+        if not self._damage:
+            return wire
+        kind = self._damage.popleft()
+        if kind == "truncate":
+            return wire[: len(wire) // 2]
+        pos = HEADER_SIZE + len(wire) // 3 if kind == "payload" else 10
+        return wire[:pos] + bytes([wire[pos] ^ 0x5A]) + wire[pos + 1 :]
+
+    # --- the bulk pipe --------------------------------------------------------------------
+
+    def bulk_read(self, size: int, timeout_ms: int) -> bytes:
+        """What one bulk IN transfer of `size` bytes returns."""
+        deadline = self._monotonic() + timeout_ms / 1000.0
+        with self._lock:
+            while True:
+                if self._zlp_pending:
+                    self._zlp_pending = False
+                    return b""
+                if self._tx_pos < len(self._tx):
+                    return self._send_piece(size)
+                self._catch_up()
+                if self._streaming and self._fifo:
+                    self._tx = self._apply_damage(self._build(self._fifo.popleft()))
+                    self._tx_pos = 0
+                    continue
+                wait = deadline - self._monotonic()
+                due = self._next_due_us()
+                if not self.realtime and (due is None or not self._streaming):
+                    wait = min(wait, 0.0)  # nothing will come; don't make tests wait
+                if wait <= 0:
+                    raise BulkTimeout
+                if due is not None:
+                    wait = min(wait, max(0.0, (due - self.now_us()) / 1e6))
+                self._lock.wait(wait)
+
+    def _send_piece(self, size: int) -> bytes:
+        left = len(self._tx) - self._tx_pos
+        if left > size and size % MAX_PACKET:
+            raise BulkOverflow
+        n = min(size, left)
+        piece = self._tx[self._tx_pos : self._tx_pos + n]
+        self._tx_pos += n
+        if self._tx_pos == len(self._tx):
+            self._tx = b""
+            self._tx_pos = 0
+            self._zlp_pending = n == size and len(piece) % MAX_PACKET == 0
+            self.frames_sent += 1
+        return piece
+
+    def _build(self, queued: _Queued) -> bytes:
+        """Render one queued frame and put it on the wire."""
+        regs = self._regs
+        exposure = Exposure(
+            sequence=queued.sequence,
+            t0_s=queued.t0_us / 1e6,
+            tap_interval_s=self.tap_interval_us / 1e6,
+            integration_s=integration_us(regs[Register.INTEGRATION]) / 1e6,
+            mod_code=regs[Register.MOD_FREQ],
+        )
+        rendered = self.source.render(exposure)
+        taps = np.ascontiguousarray(rendered.taps, dtype="<u2")
+        self._keep_truth(queued.sequence, rendered.truth)
+        flags = queued.flags
+        if bool((taps >= MAX_COUNT).any()):
+            flags |= FLAG_SATURATED
+        if self.over_temperature:
+            flags |= FLAG_OVER_TEMPERATURE
+        payload = taps.tobytes()
+        header = FrameHeader(
+            sequence=queued.sequence,
+            device_time_us=queued.t0_us,
+            width=self.info.width,
+            height=self.info.height,
+            mod_code=regs[Register.MOD_FREQ],
+            integration=regs[Register.INTEGRATION],
+            flags=flags,
+            temperature_c=self.temperature_c,
+            tap_interval_us=self.tap_interval_us,
+            payload_size=len(payload),
+            payload_crc=crc32(payload),
+        )
+        return pack_header(header) + payload
+
+    def _keep_truth(self, sequence: int, truth: object) -> None:
+        if truth is None:
+            return
+        self._truth[sequence] = truth
+        while len(self._truth) > TRUTH_KEPT:
+            self._truth.popitem(last=False)
+
+    def truth(self, sequence: int) -> object | None:
+        """Ground truth of a recently sent frame (the last few hundred are kept)."""
+        with self._lock:
+            return self._truth.get(sequence)

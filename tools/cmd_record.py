@@ -1,0 +1,80 @@
+"""`tofcut record CAMERA -o FILE.tofcap`: write the raw stream to a capture file."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from tofcut.driver.camera import Camera
+from tofcut.driver.capture import CaptureWriter, capture_metadata
+from tofcut.driver.protocol import WRITABLE_REGISTERS
+from tofcut.driver.stream import StreamStats
+from tofcut.sim.truth import FrameTruth, save_truth, truth_path
+from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.progress import Progress
+from tofcut.tools.sources import SourceError, open_source
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("record", help="record a camera's raw frames to a .tofcap capture")
+    add_source_argument(p)
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.tofcap")
+    limit = p.add_mutually_exclusive_group()
+    limit.add_argument("--frames", type=int, help="stop after this many frames")
+    limit.add_argument("--seconds", type=float, help="stop after this long (default 5 s)")
+    add_camera_options(p)
+    p.set_defaults(func=run)
+
+
+def stats_summary(stats: StreamStats) -> str:
+    text = f"{stats.frames} frames, {stats.lost} lost, {stats.damaged} damaged"
+    if stats.gaps:
+        ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in list(stats.gaps)[-5:])
+        text += f" (lost sequence numbers: {ranges})"
+    return text
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.source.kind == "capture":
+        raise SourceError("record reads from a camera: usb, usb:SERIAL or emulator[:SCENE]")
+    frames_wanted = args.frames
+    seconds = args.seconds if args.seconds is not None or frames_wanted else 5.0
+    opened = open_source(
+        args.source, realtime=not args.fast, seed=args.seed,
+        amplitude_threshold=args.amplitude_threshold,
+    )  # fmt: skip
+    cam = opened.device
+    assert isinstance(cam, Camera)
+    with cam:
+        asked = config_from_args(args, cam.config)
+        if asked is not None:
+            cam.configure(asked)
+        registers = {r.name: cam.read_register(r) for r in sorted(WRITABLE_REGISTERS)}
+        meta = capture_metadata(cam.info, registers, source=str(args.source))
+        progress = Progress(frames_wanted, f"recording {args.output}")
+        start = time.monotonic()
+        truths: list[FrameTruth] = []
+        with CaptureWriter(args.output, meta, cam.calibration_block) as writer:
+            try:
+                for raw in cam.raw_frames():
+                    writer.write(raw)
+                    truth = opened.emulator.truth(raw.sequence) if opened.emulator else None
+                    if isinstance(truth, FrameTruth):
+                        truths.append(truth)
+                    progress.update(writer.frames, f"lost {cam.stats.lost}")
+                    if frames_wanted is not None and writer.frames >= frames_wanted:
+                        break
+                    if seconds is not None and time.monotonic() - start >= seconds:
+                        break
+            except KeyboardInterrupt:
+                print("stopped by Ctrl-C; the capture is complete up to the last frame")
+            finally:
+                progress.close()
+        elapsed = time.monotonic() - start
+    print(f"wrote {args.output}: {stats_summary(cam.stats)} in {elapsed:.1f} s")
+    if truths:
+        path = truth_path(args.output)
+        save_truth(path, truths)
+        print(f"wrote {path}: ground truth of {len(truths)} frames")
+    return 0
