@@ -1,0 +1,1 @@
+"""Frames in, tracks out: graph-cut segmentation with range in the energy, and tracking."""
