@@ -43,11 +43,14 @@ class ObjectInfo:
 
 @dataclass(frozen=True, eq=False)
 class BeltInfo:
-    """The belt as the camera sees it: unit direction of travel in camera coordinates, speed."""
+    """The belt as the camera sees it (camera coordinates): a point on the middle of its top
+    surface, its unit direction of travel and unit upward normal, speed and width."""
 
     direction: F64
     speed_mps: float
     width_m: float
+    point: F64
+    normal: F64
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,8 +119,11 @@ class SceneSource:
         b = self.scene.belt
         if b is None:
             return None
-        d = self.scene.camera_from_world.rotation @ np.array([1.0, 0.0, 0.0])
-        return BeltInfo(d, b.speed_mps, b.width_m)
+        cam = self.scene.camera_from_world
+        d = cam.rotation @ np.array([1.0, 0.0, 0.0])
+        up = cam.rotation @ np.array([0.0, 0.0, 1.0])
+        point = cam.rotation @ np.array([0.0, 0.0, b.top_z]) + cam.translation
+        return BeltInfo(d, b.speed_mps, b.width_m, point, up)
 
     @cached_property
     def target(self) -> TargetInfo | None:

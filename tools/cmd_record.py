@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         if asked is not None:
             cam.configure(asked)
         registers = {r.name: cam.read_register(r) for r in sorted(WRITABLE_REGISTERS)}
-        meta = capture_metadata(cam.info, registers, source=str(args.source))
+        meta = capture_metadata(cam.info, registers, source=str(args.source), **opened.metadata)
         progress = Progress(frames_wanted, f"recording {args.output}")
         start = time.monotonic()
         truths: list[FrameTruth] = []

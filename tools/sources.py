@@ -6,8 +6,11 @@ The emulator is chosen here and nowhere else: it is a pyusb backend handed to th
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
+
+import numpy as np
 
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
@@ -19,6 +22,7 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError
 from tofcut.sim.source import TapSource
 from tofcut.sim.usb_backend import EmulatedBackend
+from tofcut.tracker.belt import BeltGeometry
 
 TEST_PATTERN = "test-pattern"
 DEFAULT_SCENE = "conveyor"
@@ -69,6 +73,58 @@ class Opened:
 
     device: Camera | CaptureReader
     emulator: EmulatedCamera | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    """What the emulated scene tells the tracker (belt, marked target); kept in captures."""
+
+
+@dataclass(frozen=True, eq=False)
+class SceneBelt:
+    """The belt of an emulated scene, as a capture's metadata carries it."""
+
+    geometry: BeltGeometry
+    speed_mps: float
+
+
+def scene_metadata(source: TapSource) -> dict[str, Any]:
+    """The installation facts of an emulated scene: its name, belt and marked target."""
+    if not isinstance(source, SceneSource):
+        return {}
+    meta: dict[str, Any] = {"scene": source.name}
+    belt = source.belt
+    if belt is not None:
+        meta["belt"] = {
+            "point": belt.point.tolist(),
+            "direction": belt.direction.tolist(),
+            "normal": belt.normal.tolist(),
+            "width_m": belt.width_m,
+            "speed_mps": belt.speed_mps,
+        }
+    if source.target is not None:
+        meta["target_pixel"] = list(source.target.seed_pixel)
+    return meta
+
+
+def belt_of(meta: dict[str, Any]) -> SceneBelt | None:
+    """The belt recorded in scene metadata, or None."""
+    b = meta.get("belt")
+    if not isinstance(b, dict):
+        return None
+    try:
+        geometry = BeltGeometry(
+            np.array(b["point"], float), np.array(b["direction"], float),
+            np.array(b["normal"], float), float(b["width_m"]),
+        )  # fmt: skip
+        return SceneBelt(geometry, float(b["speed_mps"]))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise SourceError(f"the belt in the capture's metadata is unusable: {exc}") from None
+
+
+def scene_target(meta: dict[str, Any]) -> tuple[int, int] | None:
+    """The marked target's seed pixel (u, v) from scene metadata, or None."""
+    seed = meta.get("target_pixel")
+    if isinstance(seed, list) and len(seed) == 2 and all(isinstance(x, int) for x in seed):
+        return (seed[0], seed[1])
+    return None
 
 
 def open_source(
@@ -85,4 +141,4 @@ def open_source(
     emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
     backend = EmulatedBackend([emulator])
     camera = Camera.open(backend=backend, amplitude_threshold=amplitude_threshold)
-    return Opened(camera, emulator)
+    return Opened(camera, emulator, scene_metadata(source))

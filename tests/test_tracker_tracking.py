@@ -1,0 +1,133 @@
+"""The multi-object tracker, its joint cut, and the pipeline around it."""
+
+from __future__ import annotations
+
+import itertools
+import json
+import threading
+
+import numpy as np
+import pytest
+
+from tofcut.sim import open_scene
+from tofcut.sim.preview import decode, scene_exposure
+from tofcut.tools.cli import main
+from tofcut.tools.pipeline import LiveFeed
+from tofcut.tracker.belt import BeltGeometry
+from tofcut.tracker.multicut import PottsProblem, solve_potts
+from tofcut.tracker.tracker import Tracker, TrackerParams
+
+
+def _random_problem(rng, labels, nodes):
+    i, j = np.triu_indices(nodes, 1)
+    keep = rng.random(i.size) < 0.5
+    return PottsProblem(
+        rng.random((labels, nodes)) * 3, i[keep].astype(np.int64), j[keep].astype(np.int64),
+        rng.random(int(keep.sum())),
+    )  # fmt: skip
+
+
+def _brute_force(problem):
+    best = np.inf
+    for combo in itertools.product(range(problem.labels), repeat=problem.nodes):
+        best = min(best, problem.energy(np.array(combo)))
+    return best
+
+
+def test_the_joint_cut_is_exact_with_two_labels():
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        problem = _random_problem(rng, 2, 8)
+        assert problem.energy(solve_potts(problem)) == pytest.approx(_brute_force(problem))
+
+
+def test_expansion_is_within_twice_the_minimum_with_more_labels():
+    rng = np.random.default_rng(2)
+    for _ in range(10):
+        problem = _random_problem(rng, 3, 6)
+        got = problem.energy(solve_potts(problem))
+        best = _brute_force(problem)
+        assert best - 1e-9 <= got <= 2 * best + 1e-9
+
+
+def test_bad_tracker_parameters_are_refused_with_the_reason():
+    with pytest.raises(ValueError, match="beta"):
+        TrackerParams(beta=0)
+    with pytest.raises(ValueError, match="background_cap"):
+        TrackerParams(background_cap=1.0)
+    with pytest.raises(ValueError, match="not both"):
+        Tracker().add_target(pixel=(1, 1), point=np.zeros(3))
+
+
+def _conveyor_run(frames):
+    src = open_scene("conveyor", 0)
+    b = src.belt
+    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    out = []
+    for i in range(frames):
+        frame, truth = decode(src, scene_exposure(src, i * 0.02, i))
+        out.append((tracker.update(frame), truth))
+    return out
+
+
+def test_conveyor_boxes_are_found_and_keep_their_ids():
+    run = _conveyor_run(60)
+    last, truth = run[-1]
+    visible = [t for t in last.tracks if t.visible]
+    assert len(visible) >= 3
+    ids_at_20 = {t.id for t in run[20][0].tracks if t.visible}
+    ids_at_59 = {t.id for t in last.tracks if t.visible}
+    assert len(ids_at_20 & ids_at_59) >= 3  # the same boxes, under the same ids
+    for tracked, _ in run:
+        for t in tracked.tracks:  # masks are disjoint by construction, and agree with counts
+            assert int((tracked.labels == t.id).sum()) == t.pixels
+    # every object in full view is mostly covered by one track
+    for obj in truth.objects:
+        if obj.pixels > 1000:
+            ids, counts = np.unique(last.labels[truth.labels == obj.id], return_counts=True)
+            assert ids[np.argmax(counts)] > 0
+            assert counts.max() > 0.5 * obj.pixels
+
+
+class _SlowConsumerCamera:
+    """A camera whose frames come faster than the consumer takes them."""
+
+    def __init__(self, n):
+        self.n = n
+        self.done = threading.Event()
+
+    def raw_frames(self):
+        yield from range(self.n)
+        self.done.set()
+
+
+def test_the_live_queue_drops_the_oldest_frames_and_counts_them():
+    cam = _SlowConsumerCamera(50)
+    feed = LiveFeed(cam, size=4).start()
+    assert cam.done.wait(5)
+    got = [raw for raw, _ in feed]
+    feed.stop()
+    assert got == [46, 47, 48, 49]
+    assert feed.dropped == 46
+
+
+def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
+    cap = tmp_path / "run.tofcap"
+    assert main(["record", "emulator:conveyor", "-o", str(cap), "--frames", "30", "--fast"]) == 0
+    tracks, masks = tmp_path / "t.jsonl", tmp_path / "m.npz"
+    code = main(["track", str(cap), "--tracks-out", str(tracks), "--masks-out", str(masks)])
+    assert code == 0
+    lines = [json.loads(x) for x in tracks.read_text().splitlines()]
+    assert [x["seq"] for x in lines] == list(range(30))
+    assert all(set(x) == {"seq", "device_time_us", "tracks"} for x in lines)
+    some = [t for x in lines for t in x["tracks"]]
+    assert some
+    assert set(some[0]) == {"id", "centroid", "velocity", "bbox", "pixels"}
+    with np.load(masks) as z:
+        assert z["labels"].shape == (30, 144, 176)
+        assert z["labels"].dtype == np.uint16
+        assert list(z["seq"]) == list(range(30))
+        last = lines[-1]["tracks"]
+        for t in last:
+            assert int((z["labels"][-1] == t["id"]).sum()) == t["pixels"]
+    assert "tracked 30 frames" in capsys.readouterr().out

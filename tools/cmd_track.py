@@ -1,0 +1,186 @@
+"""`tofcut track SOURCE` and `tofcut live [CAMERA]`: track objects, export tracks and masks.
+
+SOURCE is a capture file, `usb[:SERIAL]` or `emulator[:SCENE]`. Offline sources show a
+progress bar; live ones a one-line status (fps, tracks, losses).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tofcut.driver.camera import Camera
+from tofcut.driver.capture import CaptureReader
+from tofcut.driver.demod import demodulate
+from tofcut.tools.cmd_record import stats_summary
+from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.pipeline import (
+    LiveFeed,
+    MasksWriter,
+    Output,
+    RunSummary,
+    Status,
+    TracksWriter,
+    offline,
+    run,
+)
+from tofcut.tools.progress import Progress
+from tofcut.tools.sources import SourceError, belt_of, open_source, scene_target
+from tofcut.tracker.motion import BeltPrior
+from tofcut.tracker.tracker import Tracker
+from tofcut.tracker.tracks import TrackedFrame
+
+BELT_SPEED_SIGMA = 0.02
+"""How sure the tracker is of the belt's speed as the scene or capture gives it, m/s."""
+
+
+def _triple(text: str) -> tuple[float, float, float]:
+    parts = [float(x) for x in text.split(",")]
+    if len(parts) != 3:
+        raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z")
+    return (parts[0], parts[1], parts[2])
+
+
+def _pixel(text: str) -> tuple[int, int]:
+    parts = [int(x) for x in text.split(",")]
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"{text!r} is not U,V")
+    return (parts[0], parts[1])
+
+
+def add_tracking_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("tracking")
+    g.add_argument("--tracks-out", type=Path, metavar="FILE.jsonl", help="tracks, one line a frame")
+    g.add_argument("--masks-out", type=Path, metavar="FILE.npz", help="label images of every frame")
+    g.add_argument("--frames", type=int, help="stop after this many frames")
+    g.add_argument("--seconds", type=float, help="stop after this long")
+    g.add_argument(
+        "--target-pixel", type=_pixel, action="append", default=[], metavar="U,V",
+        help="follow a known target from this seed pixel (repeatable)",
+    )  # fmt: skip
+    g.add_argument(
+        "--target-point", type=_triple, action="append", default=[], metavar="X,Y,Z",
+        help="follow a known target from this 3D point, camera coordinates (repeatable)",
+    )  # fmt: skip
+    g.add_argument(
+        "--scene-target", action="store_true",
+        help="emulator or emulator capture: follow the scene's marked target from its seed",
+    )  # fmt: skip
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("track", help="track objects in a capture or from a camera")
+    add_source_argument(p)
+    add_tracking_options(p)
+    add_camera_options(p)
+    p.set_defaults(func=lambda a: track(a, live=a.source.kind != "capture"))
+
+
+class StatusLine:
+    """The live one-line status on stderr: fps, tracks, losses, latency."""
+
+    def __init__(self, progress: Progress) -> None:
+        self._progress = progress
+
+    def write(self, tracked: TrackedFrame, status: Status) -> None:
+        self._progress.update(
+            status.frames,
+            f"{status.fps:5.1f} fps  {status.tracks} tracks  {status.lost} lost  "
+            f"latency {status.latency_s * 1e3:.1f} ms",
+        )
+
+    def close(self) -> None:
+        self._progress.close()
+
+
+def track(args: argparse.Namespace, *, live: bool) -> int:
+    """Run the tracker on the source the arguments name."""
+    opened = open_source(
+        args.source, realtime=not args.fast, seed=args.seed,
+        amplitude_threshold=args.amplitude_threshold,
+    )  # fmt: skip
+    device = opened.device
+    meta: dict[str, Any] = (
+        device.capture.metadata if isinstance(device, CaptureReader) else opened.metadata
+    )
+    belt = belt_of(meta)
+    tracker = Tracker(belt=belt.geometry if belt else None)
+    targets = list(args.target_pixel)
+    if args.scene_target:
+        seed = scene_target(meta)
+        if seed is None:
+            raise SourceError("--scene-target needs an emulated scene that marks a target")
+        targets.append(seed)
+    for pixel in targets:
+        tracker.add_target(pixel=pixel)
+    for point in args.target_point:
+        tracker.add_target(point=np.array(point))
+    prior = BeltPrior(belt.geometry.direction * belt.speed_mps, BELT_SPEED_SIGMA) if belt else None
+
+    outputs: list[Output] = []
+    if args.tracks_out:
+        outputs.append(TracksWriter(args.tracks_out))
+    if args.masks_out:
+        outputs.append(MasksWriter(args.masks_out))
+    limit_s = args.seconds
+    if live and limit_s is None and args.frames is None:
+        limit_s = getattr(args, "default_seconds", None)
+
+    started = time.perf_counter()
+
+    def should_stop(s: RunSummary) -> bool:
+        if args.frames is not None and s.frames >= args.frames:
+            return True
+        return limit_s is not None and time.perf_counter() - started >= limit_s
+
+    summary: RunSummary
+    try:
+        if isinstance(device, CaptureReader):
+            total = len(device) if args.frames is None else min(args.frames, len(device))
+            outputs.append(StatusLine(Progress(total, f"tracking {args.source}")))
+            summary = run(
+                offline(device.raw_frames()),
+                lambda raw: demodulate(raw, device.optics, device.amplitude_threshold),
+                tracker, outputs,
+                stats=lambda: device.stats, dropped=lambda: 0, belt=lambda: prior,
+                should_stop=should_stop,
+            )  # fmt: skip
+            stats = device.stats
+        else:
+            assert isinstance(device, Camera)
+            with device:
+                asked = config_from_args(args, device.config)
+                if asked is not None:
+                    device.configure(asked)
+                print(f"camera {device.serial} ({args.source}): {device.config.describe()}")
+                outputs.append(StatusLine(Progress(None, "live")))
+                feed = LiveFeed(device).start()
+                try:
+                    summary = run(
+                        feed, device.demodulate, tracker, outputs,
+                        stats=lambda: device.stats, dropped=lambda: feed.dropped,
+                        belt=lambda: prior, should_stop=should_stop,
+                    )  # fmt: skip
+                finally:
+                    feed.stop()
+            stats = device.stats
+    except KeyboardInterrupt:
+        print("stopped by Ctrl-C; the outputs hold every frame tracked", file=sys.stderr)
+        return 130
+    fps = summary.frames / summary.elapsed_s if summary.elapsed_s > 0 else 0.0
+    print(
+        f"tracked {summary.frames} frames in {summary.elapsed_s:.1f} s ({fps:.1f} fps): "
+        f"{len(summary.tracks_seen)} tracks; latency p50 {summary.percentile_ms(50):.1f} ms, "
+        f"p99 {summary.percentile_ms(99):.1f} ms"
+    )
+    print(f"received {stats_summary(stats)}; dropped by the tracker queue: {summary.dropped}")
+    for name in ("tracks_out", "masks_out"):
+        path = getattr(args, name)
+        if path:
+            print(f"wrote {path}")
+    return 0

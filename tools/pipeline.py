@@ -1,0 +1,217 @@
+"""The tracking pipeline: raw frames → demodulation → tracker → outputs, live or offline.
+
+Live, USB reads run on their own thread into a bounded queue, so the camera never waits
+for the tracker: when the tracker falls behind, the oldest frames are dropped and counted.
+Offline (a capture), frames are read as fast as they are tracked and nothing is dropped.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Protocol
+
+import numpy as np
+
+from tofcut.driver.camera import Camera
+from tofcut.driver.errors import TofcutError
+from tofcut.driver.frames import Frame, RawFrame
+from tofcut.driver.stream import StreamStats
+from tofcut.tracker.motion import BeltPrior
+from tofcut.tracker.tracker import Tracker
+from tofcut.tracker.tracks import TrackedFrame
+
+QUEUE_FRAMES = 8
+"""Frames the live queue holds; older ones are dropped when the tracker falls behind."""
+
+
+class LiveFeed:
+    """Reads a camera on its own thread into a bounded queue; iterating yields raw frames."""
+
+    def __init__(self, camera: Camera, size: int = QUEUE_FRAMES) -> None:
+        if size < 1:
+            raise ValueError(f"queue size must be at least 1, got {size}")
+        self._camera = camera
+        self._queue: deque[tuple[RawFrame, float]] = deque()
+        self._size = size
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._error: BaseException | None = None
+        self.dropped = 0
+        """Frames received but dropped because the tracker was behind."""
+        self._thread = threading.Thread(target=self._read, name="tofcut-usb", daemon=True)
+
+    def start(self) -> LiveFeed:
+        self._thread.start()
+        return self
+
+    def _read(self) -> None:
+        try:
+            for raw in self._camera.raw_frames():
+                with self._cond:
+                    if len(self._queue) >= self._size:
+                        self._queue.popleft()
+                        self.dropped += 1
+                    self._queue.append((raw, time.perf_counter()))
+                    self._cond.notify()
+                if self._stop.is_set():
+                    break
+        except BaseException as exc:  # handed to the consumer, which raises it
+            self._error = exc
+        finally:
+            with self._cond:
+                self._stop.set()
+                self._cond.notify_all()
+
+    def __iter__(self) -> Iterator[tuple[RawFrame, float]]:
+        """(raw frame, perf_counter time it arrived) until the feed stops."""
+        while True:
+            with self._cond:
+                while not self._queue and not self._stop.is_set():
+                    self._cond.wait()
+                if self._queue:
+                    item = self._queue.popleft()
+                elif self._error is not None:
+                    raise self._error
+                else:
+                    return
+            yield item
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+
+def offline(frames: Iterable[RawFrame]) -> Iterator[tuple[RawFrame, float]]:
+    """A capture or any other iterable of raw frames, stamped as they are taken."""
+    for raw in frames:
+        yield raw, time.perf_counter()
+
+
+class Output(Protocol):
+    """Something that takes every tracked frame: a file, the viewer, a status line."""
+
+    def write(self, tracked: TrackedFrame, status: Status) -> None: ...
+
+    def close(self) -> None: ...
+
+
+@dataclass(frozen=True)
+class Status:
+    """The pipeline's health after one frame."""
+
+    fps: float
+    """Frames tracked per second over the last second or so."""
+    latency_s: float
+    """From the frame's arrival on the host to its tracks."""
+    frames: int
+    lost: int
+    """Frames lost so far: device gaps, damaged frames, and frames the pipeline dropped."""
+    tracks: int
+    belt_speed_mps: float | None = None
+
+
+@dataclass
+class RunSummary:
+    """What a run did, for the closing line."""
+
+    frames: int = 0
+    dropped: int = 0
+    latencies_s: list[float] = field(default_factory=list)
+    elapsed_s: float = 0.0
+    tracks_seen: set[int] = field(default_factory=set)
+
+    def percentile_ms(self, q: float) -> float:
+        return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s else 0.0
+
+
+class TracksWriter:
+    """`--tracks-out FILE.jsonl`: one JSON object per frame (format in the README)."""
+
+    def __init__(self, path: Path) -> None:
+        self._file: IO[str] = path.open("w", encoding="utf-8")
+
+    def write(self, tracked: TrackedFrame, status: Status) -> None:
+        self._file.write(json.dumps(tracked.to_json(), separators=(",", ":")) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class MasksWriter:
+    """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._labels: list[np.ndarray] = []
+        self._seq: list[int] = []
+
+    def write(self, tracked: TrackedFrame, status: Status) -> None:
+        self._labels.append(tracked.labels)
+        self._seq.append(tracked.sequence)
+
+    def close(self) -> None:
+        if self._labels:
+            np.savez_compressed(
+                self.path,
+                labels=np.stack(self._labels).astype(np.uint16),
+                seq=np.array(self._seq, np.int64),
+            )
+
+
+def run(
+    source: Iterable[tuple[RawFrame, float]],
+    demodulate: Callable[[RawFrame], Frame],
+    tracker: Tracker,
+    outputs: list[Output],
+    *,
+    stats: Callable[[], StreamStats],
+    dropped: Callable[[], int],
+    belt: Callable[[], BeltPrior | None] = lambda: None,
+    should_stop: Callable[[RunSummary], bool] = lambda s: False,
+) -> RunSummary:
+    """Track every frame of `source` and hand each result to every output."""
+    summary = RunSummary()
+    start = time.perf_counter()
+    recent: deque[float] = deque(maxlen=50)
+    try:
+        for raw, arrived in source:
+            prior = belt()
+            tracked = tracker.update(demodulate(raw), prior)
+            done = time.perf_counter()
+            recent.append(done)
+            summary.frames += 1
+            summary.latencies_s.append(done - arrived)
+            summary.tracks_seen.update(t.id for t in tracked.tracks)
+            st = stats()
+            span = recent[-1] - recent[0]
+            status = Status(
+                fps=(len(recent) - 1) / span if span > 0 else 0.0,
+                latency_s=done - arrived,
+                frames=summary.frames,
+                lost=st.lost + dropped(),
+                tracks=len(tracked.tracks),
+                belt_speed_mps=float(np.linalg.norm(prior.velocity)) if prior else None,
+            )
+            for out in outputs:
+                out.write(tracked, status)
+            if should_stop(summary):
+                break
+    finally:
+        summary.elapsed_s = time.perf_counter() - start
+        summary.dropped = dropped()
+        errors = []
+        for out in outputs:
+            try:
+                out.close()
+            except (OSError, TofcutError) as exc:
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+    return summary

@@ -1,0 +1,138 @@
+"""A range model of the empty scene: what each pixel sees when nothing stands in front of it.
+
+Objects only ever come *between* the camera and the scenery, so the model keeps, per pixel,
+the far range that pixel keeps returning to. It starts from the first frames (the farthest
+of them, so objects that pass through do not stick), and afterwards it follows the scene
+where nothing is tracked: slowly towards what is seen, and at once where the scenery turns
+out to be farther than thought (an object that stood still at the start and then left).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from tofcut.driver.frames import Frame
+from tofcut.tracker.belt import BeltGeometry
+
+F64 = npt.NDArray[np.float64]
+B = npt.NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class BackgroundParams:
+    """How the empty-scene model learns and what counts as standing out of it."""
+
+    learn_frames: int = 10
+    """Frames used to start the model before anything is detected."""
+    rate: float = 0.02
+    """Per-frame weight of a new frame where nothing is tracked (a slow running mean)."""
+    min_sigma_m: float = 0.004
+    """Floor of a pixel's range noise: no pixel is trusted to better than this."""
+    noise_factor: float = 4.0
+    """A pixel stands out when it is nearer than the model by this many sigmas..."""
+    min_height_m: float = 0.02
+    """...and by at least this much (thin things lying flat are part of the belt)."""
+    reveal_frames: int = 5
+    """Frames in a row a pixel must read farther than the model before the model moves back."""
+
+    def __post_init__(self) -> None:
+        if self.reveal_frames < 1:
+            raise ValueError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
+        if self.learn_frames < 1:
+            raise ValueError(f"learn_frames must be at least 1, got {self.learn_frames}")
+        if not 0.0 < self.rate <= 1.0:
+            raise ValueError(f"rate must be in (0, 1], got {self.rate}")
+        if self.min_sigma_m <= 0 or self.noise_factor <= 0 or self.min_height_m < 0:
+            raise ValueError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
+
+
+class BackgroundModel:
+    """Per-pixel range and intensity of the empty scene, with the range noise of each pixel."""
+
+    def __init__(self, shape: tuple[int, int], params: BackgroundParams | None = None) -> None:
+        self.params = params or BackgroundParams()
+        self.shape = shape
+        self._seen: list[tuple[F64, F64, B]] = []
+        self.range: F64 = np.full(shape, np.nan)
+        self.intensity: F64 = np.full(shape, np.nan)
+        self.sigma: F64 = np.full(shape, self.params.min_sigma_m)
+        self.known: B = np.zeros(shape, bool)
+        """Pixels whose scenery range is known (valid in enough of the learning frames)."""
+        self._farther = np.zeros(shape, np.int32)
+
+        self.ready = False
+        """True once the learning frames are in."""
+
+    def learn(self, frame: Frame) -> bool:
+        """Feed a learning frame; True once the model is ready."""
+        self._seen.append((frame.range, frame.intensity, frame.valid))
+        if len(self._seen) < self.params.learn_frames:
+            return False
+        ranges = np.stack([np.where(v, r, np.nan) for r, _, v in self._seen])
+        inten = np.stack([np.where(v, i, np.nan) for _, i, v in self._seen])
+        self._seen.clear()
+        count = np.sum(np.isfinite(ranges), axis=0)
+        self.known = count >= max(2, ranges.shape[0] // 2)
+        with np.errstate(all="ignore"):
+            far = np.nanpercentile(ranges, 90, axis=0)
+            # only the frames near the far value are scenery; their spread is the noise
+            scenery = ranges > far - 0.05
+            r = np.where(scenery, ranges, np.nan)
+            self.range = np.where(self.known, np.nanmedian(r, axis=0), np.nan)
+            spread = np.nanstd(r, axis=0)
+            self.intensity = np.where(
+                self.known, np.nanmedian(np.where(scenery, inten, np.nan), axis=0), np.nan
+            )
+        self.sigma = np.maximum(np.nan_to_num(spread, nan=0.0), self.params.min_sigma_m)
+        self.ready = True
+        return True
+
+    def clear_belt(self, frame: Frame, belt: BeltGeometry) -> None:
+        """Put the belt where the model saw something in front of it while learning: objects
+        that stood on the belt during the first frames are not scenery."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rays = frame.xyz / frame.range[..., None]
+        surface = belt.range_along(rays)
+        above = self.known & np.isfinite(surface) & belt.over_belt(rays * self.range[..., None])
+        above &= self.range < surface - self.params.min_height_m
+        self.range[above] = surface[above]
+        self.sigma[above] = np.maximum(self.sigma[above], self.params.min_sigma_m)
+
+    def standing_out(self, frame: Frame) -> B:
+        """Pixels nearer than the scenery by more than the noise allows: something is there."""
+        p = self.params
+        with np.errstate(invalid="ignore"):
+            nearer = self.range - frame.range
+            out = (nearer > p.noise_factor * self.sigma) & (nearer > p.min_height_m)
+        return out & frame.valid & self.known
+
+    def nearness(self, frame: Frame) -> F64:
+        """How far in front of the scenery each pixel is, in its own noise sigmas (0 unknown)."""
+        with np.errstate(invalid="ignore"):
+            z = (self.range - frame.range) / self.sigma
+        return np.where(frame.valid & self.known, z, 0.0)
+
+    def update(self, frame: Frame, free: B) -> None:
+        """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
+        range once the pixel has read farther for `reveal_frames` frames in a row."""
+        p = self.params
+        usable = free & frame.valid
+        with np.errstate(invalid="ignore"):
+            deviation = frame.range - self.range
+            farther = usable & (deviation > p.noise_factor * self.sigma)
+        self._farther = np.where(farther, self._farther + 1, 0)
+        newly = usable & ~self.known
+        jump = (self._farther >= p.reveal_frames) | newly
+        blend = usable & self.known & (np.abs(deviation) <= p.noise_factor * self.sigma)
+        self.range[blend] += p.rate * deviation[blend]
+        self.intensity[blend] += p.rate * (frame.intensity[blend] - self.intensity[blend])
+        var = self.sigma[blend] ** 2
+        var += p.rate * (deviation[blend] ** 2 - var)
+        self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
+        self.range[jump] = frame.range[jump]
+        self.intensity[jump] = frame.intensity[jump]
+        self._farther[jump] = 0
+        self.known |= newly

@@ -1,0 +1,88 @@
+"""A constant-velocity Kalman filter in 3D, with the belt's velocity as an optional prior.
+
+State: position and velocity in camera coordinates (metres, m/s). Measurements: the 3D
+centroid of the object's points. Where the conveyor's speed is known, the velocity is also
+"measured" as the belt velocity, with the uncertainty of the belt reading: objects ride
+the belt, so they keep the belt's pace through occlusion.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class MotionParams:
+    """Noise levels of the constant-velocity model."""
+
+    accel_sigma: float = 0.5
+    """Random acceleration, m/s²: how fast an object may change its velocity."""
+    measure_sigma_m: float = 0.01
+    """Noise of a measured centroid, metres."""
+    initial_speed_sigma: float = 0.5
+    """Velocity uncertainty of a new track, m/s."""
+
+    def __post_init__(self) -> None:
+        if min(self.accel_sigma, self.measure_sigma_m, self.initial_speed_sigma) <= 0:
+            raise ValueError("motion noise levels must be positive")
+
+
+@dataclass(frozen=True, eq=False)
+class BeltPrior:
+    """The belt's velocity in camera coordinates, and how sure we are of it (m/s, 1 sigma)."""
+
+    velocity: F64
+    sigma: float
+
+
+class ConstantVelocity:
+    """One object's 3D position and velocity."""
+
+    def __init__(self, position: F64, params: MotionParams, velocity: F64 | None = None) -> None:
+        self.params = params
+        self.x = np.concatenate([np.asarray(position, float), np.zeros(3)])
+        if velocity is not None:
+            self.x[3:] = velocity
+        self.P = np.diag([params.measure_sigma_m**2] * 3 + [params.initial_speed_sigma**2] * 3)
+
+    @property
+    def position(self) -> F64:
+        return self.x[:3].copy()
+
+    @property
+    def velocity(self) -> F64:
+        return self.x[3:].copy()
+
+    def predict(self, dt: float) -> None:
+        """Move the state on by dt seconds."""
+        if dt <= 0:
+            return
+        f = np.eye(6)
+        f[:3, 3:] = np.eye(3) * dt
+        q = self.params.accel_sigma**2
+        block = np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]) * q
+        qm = np.kron(block, np.eye(3))
+        self.x = f @ self.x
+        self.P = f @ self.P @ f.T + qm
+
+    def correct(self, centroid: F64, sigma_m: float | None = None) -> None:
+        """Take a measured centroid into the state."""
+        s = self.params.measure_sigma_m if sigma_m is None else sigma_m
+        self._update(np.hstack([np.eye(3), np.zeros((3, 3))]), np.asarray(centroid), s)
+
+    def follow_belt(self, prior: BeltPrior) -> None:
+        """Take the belt's velocity as a measurement of the object's velocity."""
+        self._update(np.hstack([np.zeros((3, 3)), np.eye(3)]), prior.velocity, prior.sigma)
+
+    def _update(self, h: F64, z: F64, sigma: float) -> None:
+        r = np.eye(3) * sigma**2
+        innovation = z - h @ self.x
+        s = h @ self.P @ h.T + r
+        k = self.P @ h.T @ np.linalg.inv(s)
+        self.x = self.x + k @ innovation
+        self.P = (np.eye(6) - k @ h) @ self.P

@@ -1,0 +1,470 @@
+"""The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`.
+
+Each frame: every track predicts its 3D position (constant velocity, the belt's pace as a
+prior); all tracks and the background then compete for the pixels in one Potts energy
+(α-expansion, `tofcut.tracker.multicut`) whose data term is the paper's eq. (6): a pixel's
+cost for track k grows with its 3D distance from the track's predicted position (measured
+in the track's own shape, so a person and a box are both "near" over their own extent),
+and its cost for the background with how far it stands out in front of the empty-scene
+range model. Pixels that no track can win whatever their neighbours do are fixed to the
+background before the cut, so the graph holds only the pixels that matter. What stands
+out and no track claims, for a few frames running, becomes a new track.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from tofcut.driver.frames import Frame
+from tofcut.tracker.background import BackgroundModel, BackgroundParams
+from tofcut.tracker.belt import BeltGeometry
+from tofcut.tracker.motion import BeltPrior, ConstantVelocity, MotionParams
+from tofcut.tracker.multicut import PottsProblem, solve_potts
+from tofcut.tracker.tracks import Track, TrackedFrame
+
+F64 = npt.NDArray[np.float64]
+B = npt.NDArray[np.bool_]
+I64 = npt.NDArray[np.int64]
+_Index = tuple[slice, slice]
+
+_NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
+"""Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Everything the tracker's behaviour depends on, with the defaults it was built with."""
+
+    background: BackgroundParams = field(default_factory=BackgroundParams)
+    motion: MotionParams = field(default_factory=MotionParams)
+    beta: float = 1.0
+    """Weight of the 3D distance penalty (eq. 6), in the track's shape: (D−µ)ᵀΣ⁻¹(D−µ)."""
+    object_cost: float = 8.0
+    """Cost of any pixel belonging to an object: what the pixel's evidence must outweigh."""
+    deadband: float = 2.0
+    """Nearness (in noise sigmas) that costs the background nothing: plain sensor noise."""
+    background_cap: float = 40.0
+    """Most a pixel can cost the background, however far in front it stands."""
+    unknown_cost: float = 11.0
+    """Background cost where the empty scene is not known yet (a seeded target's pixels)."""
+    smoothness: float = 0.8
+    """Potts weight λ between neighbours at the same 3D place."""
+    smoothness_sigma_m: float = 0.02
+    """Neighbours this far apart in 3D are tied by λ·e^(−1/2): eq. (7) in the Potts term."""
+    confirm_frames: int = 3
+    """Frames a new region must persist before it becomes a track."""
+    min_pixels: int = 30
+    """Smaller regions are noise, not objects."""
+    connect_m: float = 0.03
+    """Neighbours farther apart than this in 3D belong to different surfaces."""
+    gate_m: float = 0.08
+    """A region seen again within this distance (metres) is the same candidate."""
+    max_hidden_s: float = 2.0
+    """A hidden track is predicted this long before it ends."""
+    partial_fraction: float = 0.5
+    """A mask below this share of the track's usual size is a partial view: not measured."""
+    initial_radius_m: float = 0.08
+    """Radius of a seeded target's shape before its first mask."""
+
+    def __post_init__(self) -> None:
+        positive = {
+            "beta": self.beta,
+            "object_cost": self.object_cost,
+            "smoothness_sigma_m": self.smoothness_sigma_m,
+            "gate_m": self.gate_m,
+            "max_hidden_s": self.max_hidden_s,
+            "initial_radius_m": self.initial_radius_m,
+        }
+        for name, value in positive.items():
+            if not value > 0:
+                raise ValueError(f"TrackerParams.{name} must be positive, got {value}")
+        if self.smoothness < 0 or self.deadband < 0:
+            raise ValueError("smoothness and deadband must not be negative")
+        if self.background_cap <= self.object_cost:
+            raise ValueError("background_cap must exceed object_cost, or nothing is ever found")
+        if self.confirm_frames < 1 or self.min_pixels < 1:
+            raise ValueError("confirm_frames and min_pixels must be at least 1")
+        if not 0.0 <= self.partial_fraction <= 1.0:
+            raise ValueError("partial_fraction must be in [0, 1]")
+
+
+@dataclass(eq=False)
+class _Live:
+    """A track's state between frames."""
+
+    id: int
+    filter: ConstantVelocity
+    shape: F64
+    """3×3 covariance of the object's points: its size and orientation."""
+    usual_pixels: float = 0.0
+    hidden_s: float = 0.0
+    hidden_frames: int = 0
+    last: Track | None = None
+
+
+@dataclass(eq=False)
+class _Candidate:
+    centroid: F64
+    points: F64
+    seen: int = 1
+
+
+def _shape_of(points: F64, floor_m: float) -> F64:
+    """Covariance of a point cloud, kept from collapsing in thin directions."""
+    cov = np.cov(points.T) if len(points) > 3 else np.zeros((3, 3))
+    return np.asarray(cov + np.eye(3) * floor_m**2)
+
+
+class Tracker:
+    """Frames in, tracks out. Feed every frame in order with `update`."""
+
+    def __init__(
+        self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
+    ) -> None:
+        self.params = params or TrackerParams()
+        self.belt = belt
+        self.background: BackgroundModel | None = None
+        self._tracks: list[_Live] = []
+        self._candidates: list[_Candidate] = []
+        self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
+        self._next_id = 1
+        self._last_time_us: int | None = None
+
+    def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
+        """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
+        if (pixel is None) == (point is None):
+            raise ValueError("give a target as a seed pixel or as a 3D point, not both or neither")
+        if point is not None:
+            point = np.asarray(point, float)
+            if point.shape != (3,) or not np.isfinite(point).all():
+                raise ValueError(f"a target point must be three finite numbers, got {point!r}")
+        self._seeds.append((pixel, point))
+
+    @property
+    def tracks(self) -> int:
+        return len(self._tracks)
+
+    def update(self, frame: Frame, belt: BeltPrior | None = None) -> TrackedFrame:
+        """Track one frame; `belt` is the conveyor's velocity now, when known."""
+        p = self.params
+        h, w = frame.shape
+        if self.background is None:
+            self.background = BackgroundModel((h, w), p.background)
+        dt = 0.0
+        if self._last_time_us is not None:
+            dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
+        self._last_time_us = frame.device_time_us
+        born = self._take_seeds(frame)
+        for t in self._tracks:
+            t.filter.predict(dt)
+            if belt is not None:
+                t.filter.follow_belt(belt)
+        labels = self._segment(frame)
+        found, ended = self._measure(frame, labels, dt)
+        born += found
+        if self.background.ready:
+            self.background.update(frame, labels == 0)
+        elif self.background.learn(frame) and self.belt is not None:
+            self.background.clear_belt(frame, self.belt)
+        out = tuple(t.last for t in self._tracks if t.last is not None)
+        return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
+
+    # --- seeds ----------------------------------------------------------------------------
+
+    def _take_seeds(self, frame: Frame) -> list[int]:
+        born = []
+        h, w = frame.shape
+        for pixel, point in self._seeds:
+            if pixel is not None:
+                u, v = pixel
+                if not (0 <= u < w and 0 <= v < h):
+                    raise ValueError(f"seed pixel {pixel} is outside the {w}x{h} frame")
+                if not frame.valid[v, u]:
+                    raise ValueError(f"seed pixel {pixel} is not valid in this frame")
+                point = frame.xyz[v, u]
+            assert point is not None
+            r = self.params.initial_radius_m
+            born.append(self._start(point, np.eye(3) * r * r, None))
+        self._seeds.clear()
+        return born
+
+    def _start(self, centroid: F64, shape: F64, velocity: F64 | None) -> int:
+        track = _Live(
+            self._next_id, ConstantVelocity(centroid, self.params.motion, velocity), shape
+        )
+        self._next_id += 1
+        self._tracks.append(track)
+        return track.id
+
+    # --- the cut --------------------------------------------------------------------------
+
+    def _background_cost(self, frame: Frame) -> F64:
+        p = self.params
+        bg = self.background
+        assert bg is not None
+        if not bg.ready:
+            return np.full(frame.shape, p.unknown_cost)
+        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
+        cost = np.minimum(0.5 * z * z, p.background_cap)
+        return np.where(bg.known, cost, p.unknown_cost)
+
+    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
+        """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
+        sum of the weights at each pixel."""
+        p = self.params
+        h, w = frame.shape
+        valid = frame.valid
+        xyz = frame.xyz
+        ties = []
+        total = np.zeros((h, w))
+        for dv, du, factor in _NEIGHBOURS:
+            a, b = _shifted(h, w, dv, du)
+            d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
+            wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
+            wt[~(valid[a] & valid[b])] = p.smoothness * factor
+            ties.append((a, b, wt))
+            total[a] += wt
+            total[b] += wt
+        return ties, total
+
+    def _segment(self, frame: Frame) -> npt.NDArray[np.uint16]:
+        """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
+
+        Before the cut, pixels are fixed to the background where no labelling of their
+        neighbours could make an object label pay (object cost minus background cost above
+        the sum of the pixel's ties), and so are runs of invalid pixels (no data cost either
+        way) that touch no pixel left free; the minimum over the rest is the minimum of the
+        whole frame.
+        """
+        p = self.params
+        h, w = frame.shape
+        labels = np.zeros((h, w), np.uint16)
+        if not self._tracks:
+            return labels
+        valid = frame.valid
+        u0 = self._background_cost(frame)
+        u0[~valid] = 0.0
+        ties, total = self._ties(frame)
+        free = valid & (p.object_cost - u0 <= total)
+        if not free.any():
+            return labels
+        # the 3D distance term can only add cost: now fix what no track can win
+        where = np.nonzero(free)
+        maha = self._distances(frame.xyz[where])
+        free[where] = p.object_cost + p.beta * maha.min(axis=0) - u0[where] <= total[where]
+        if not free.any():
+            return labels
+        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
+        keep = np.unique(runs[free])
+        free |= ~valid & np.isin(runs, keep[keep > 0])
+        n = int(free.sum())
+        index = np.full((h, w), -1, np.int64)
+        index[free] = np.arange(n)
+        where = np.nonzero(free)
+        unary = np.zeros((len(self._tracks) + 1, n))
+        unary[0] = u0[where]
+        unary[1:] = p.object_cost + p.beta * self._distances(frame.xyz[where])
+        unary[1:, ~valid[where]] = 0.0
+        ei, ej, ew = [], [], []
+        for a, b, wt in ties:
+            ia, ib = index[a], index[b]
+            both = (ia >= 0) & (ib >= 0)
+            ei.append(ia[both])
+            ej.append(ib[both])
+            ew.append(wt[both])
+            # a free pixel beside a fixed one pays the tie for any object label
+            for mine, other in ((ia, ib), (ib, ia)):
+                edge = (mine >= 0) & (other < 0)
+                unary[1:] += np.bincount(mine[edge], wt[edge], minlength=n)
+        chosen = _solve_by_parts(
+            unary, np.concatenate(ei), np.concatenate(ej), np.concatenate(ew), total[where]
+        )
+        ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
+        labels[where] = ids[chosen]
+        return labels
+
+    def _distances(self, points: F64) -> F64:
+        """(tracks, N) squared Mahalanobis distance of points from each track's prediction."""
+        out = np.empty((len(self._tracks), len(points)))
+        for k, t in enumerate(self._tracks):
+            d = points - t.filter.position
+            out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
+        return np.nan_to_num(out, nan=np.inf)
+
+    # --- measuring tracks and finding new objects ------------------------------------------
+
+    def _regions(
+        self, frame: Frame, labels: npt.NDArray[np.uint16]
+    ) -> tuple[npt.NDArray[np.int32], int]:
+        """Pieces of surface that stand out of the scenery or belong to a track, split where
+        neighbours are farther apart in 3D than `connect_m` (touching objects of different
+        heights come apart; one object's pixels stay together)."""
+        p = self.params
+        h, w = frame.shape
+        bg = self.background
+        assert bg is not None
+        body = labels > 0
+        if bg.ready:
+            body |= bg.standing_out(frame)
+        xyz = frame.xyz
+        for dv, du in ((0, 1), (1, 0)):
+            a, b = _shifted(h, w, dv, du)
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > p.connect_m**2
+            # the pixel on the far side of a step is the edge: drop it from the region
+            far_a = jump & (frame.range[a] > frame.range[b])
+            far_b = jump & ~far_a
+            body[a] &= ~far_a
+            body[b] &= ~far_b
+        regions, count = ndimage.label(body)
+        return regions, int(count)
+
+    def _measure(
+        self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float
+    ) -> tuple[list[int], list[int]]:
+        """Update every track from its mask; returns (born, ended) ids."""
+        p = self.params
+        regions, count = self._regions(frame, labels)
+        ids = np.array([t.id for t in self._tracks], np.int64)
+        # which tracks own pixels in each region
+        owned = (labels > 0) & (regions > 0)
+        pairs = np.unique(np.stack([regions[owned], labels[owned].astype(np.int32)]), axis=1)
+        owners: dict[int, list[int]] = {}
+        for r, tid in pairs.T:
+            owners.setdefault(int(r), []).append(int(tid))
+        ended: list[int] = []
+        keep: list[_Live] = []
+        for t in self._tracks:
+            mask = labels == t.id
+            n = int(mask.sum())
+            if n >= p.min_pixels:
+                # the measurement: the mask, grown over the regions only this track owns
+                mine = [r for r, o in owners.items() if o == [t.id]]
+                support = mask | np.isin(regions, mine) if mine else mask
+                pts = frame.xyz[support]
+                if len(pts) >= p.partial_fraction * t.usual_pixels:
+                    t.filter.correct(pts.mean(axis=0))
+                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, 0.01)
+                    m = len(pts)
+                    t.usual_pixels = m if t.usual_pixels == 0 else 0.9 * t.usual_pixels + 0.1 * m
+                t.hidden_s = 0.0
+                t.hidden_frames = 0
+                pts = frame.xyz[mask]
+                rows, cols = np.nonzero(mask)
+                bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
+                t.last = Track(
+                    t.id, t.filter.position, t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
+                    bbox, n, pts.astype(np.float32),
+                )  # fmt: skip
+            else:
+                labels[mask] = 0
+                t.hidden_s += dt
+                t.hidden_frames += 1
+                if t.hidden_s > p.max_hidden_s or not self._in_view(frame, t):
+                    ended.append(t.id)
+                    continue
+                pos = t.filter.position
+                t.last = Track(
+                    t.id, pos, t.filter.velocity, pos, pos, (0, 0, 0, 0), 0,
+                    np.zeros((0, 3), np.float32), t.hidden_frames,
+                )  # fmt: skip
+            keep.append(t)
+        self._tracks = keep
+        born: list[int] = []
+        if self.background is not None and self.background.ready:
+            unowned = [r for r in range(1, count + 1) if r not in owners]
+            born = self._detect(frame, regions, unowned)
+        del ids
+        return born, ended
+
+    def _in_view(self, frame: Frame, t: _Live) -> bool:
+        """Whether the predicted centroid still falls on the sensor."""
+        pos = t.filter.position
+        if pos[2] <= 0:
+            return False
+        rays = frame.xyz / np.maximum(frame.range[..., None], 1e-9)
+        # the sensor's field of view, from its corner rays, in normalised coordinates
+        corners = rays[[0, 0, -1, -1], [0, -1, 0, -1]]
+        xs = corners[:, 0] / corners[:, 2]
+        ys = corners[:, 1] / corners[:, 2]
+        x, y = pos[0] / pos[2], pos[1] / pos[2]
+        return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
+
+    def _detect(
+        self, frame: Frame, regions: npt.NDArray[np.int32], unowned: list[int]
+    ) -> list[int]:
+        """Regions no track owns become candidates; one seen `confirm_frames` times, a track."""
+        p = self.params
+        sizes = np.bincount(regions.ravel())
+        found = []
+        for r in unowned:
+            if sizes[r] >= p.min_pixels:
+                pts = frame.xyz[regions == r]
+                found.append((pts.mean(axis=0), pts))
+        born = []
+        next_candidates = []
+        for centroid, pts in found:
+            match = None
+            for c in self._candidates:
+                if np.linalg.norm(c.centroid - centroid) < p.gate_m:
+                    match = c
+                    break
+            if match is None:
+                next_candidates.append(_Candidate(centroid, pts))
+                continue
+            self._candidates.remove(match)
+            match.seen += 1
+            match.centroid, match.points = centroid, pts
+            if match.seen >= p.confirm_frames:
+                born.append(self._start(centroid, _shape_of(pts, 0.01), None))
+            else:
+                next_candidates.append(match)
+        self._candidates = next_candidates
+        return born
+
+
+def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
+    """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
+    and in each part only the labels that could win some node there (its cost within the
+    node's total ties of the cheapest) take part."""
+    n = unary.shape[1]
+    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    parts, part_of = connected_components(graph, directed=False)
+    order = np.argsort(part_of, kind="stable")
+    bounds = np.searchsorted(part_of[order], np.arange(parts + 1))
+    edge_part = part_of[i]
+    edge_order = np.argsort(edge_part, kind="stable")
+    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(parts + 1))
+    local = np.empty(n, np.int64)
+    chosen = np.argmin(unary, axis=0)  # right for every node without edges
+    cheapest = unary.min(axis=0)
+    for k in np.unique(edge_part):
+        nodes = order[bounds[k] : bounds[k + 1]]
+        edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
+        local[nodes] = np.arange(nodes.size)
+        sub = unary[:, nodes]
+        can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
+        can_win[0] = True
+        labels = np.nonzero(can_win)[0]
+        if labels.size == 1:
+            continue
+        problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
+        chosen[nodes] = labels[solve_potts(problem)]
+    return chosen
+
+
+def _shifted(h: int, w: int, dv: int, du: int) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
+    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
+    rows_a = slice(0, h - dv)
+    rows_b = slice(dv, h)
+    if du >= 0:
+        cols_a, cols_b = slice(0, w - du), slice(du, w)
+    else:
+        cols_a, cols_b = slice(-du, w), slice(0, w + du)
+    return (rows_a, cols_a), (rows_b, cols_b)
