@@ -442,7 +442,7 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
     edge_order = np.argsort(edge_part, kind="stable")
     edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(parts + 1))
     local = np.empty(n, np.int64)
-    chosen = np.argmin(unary, axis=0)  # right for every node without edges
+    chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
     cheapest = unary.min(axis=0)
     for k in np.unique(edge_part):
         nodes = order[bounds[k] : bounds[k + 1]]
