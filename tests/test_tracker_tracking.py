@@ -131,3 +131,34 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
         for t in last:
             assert int((z["labels"][-1] == t["id"]).sum()) == t["pixels"]
     assert "tracked 30 frames" in capsys.readouterr().out
+
+
+def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():
+    from tofcut.driver.calibration import pixel_rays
+    from tofcut.tools.cmd_evaluate import score
+
+    src = open_scene("conveyor", 0)
+    rays = pixel_rays(src.calibration)
+    truths = [decode(src, scene_exposure(src, i * 0.02, i))[1] for i in range(6)]
+    tracks, masks = {}, {}
+    for t in truths:
+        recs = []
+        for o in t.objects:
+            m = t.labels == o.id
+            if m.sum() >= 50:
+                c = (rays[m] * t.range[m][:, None]).mean(axis=0)
+                recs.append({"id": o.id, "centroid": c.tolist()})
+        tracks[t.sequence] = recs
+        masks[t.sequence] = t.labels.astype(np.uint16)
+    perfect = score(truths, tracks, masks, rays)
+    assert perfect["mota"] == pytest.approx(1.0)
+    assert perfect["idf1"] == pytest.approx(1.0)
+    assert perfect["mean_iou"] == pytest.approx(1.0)
+    # from frame 3 on, two tracks trade ids: two switches, and IoU falls for those frames
+    a, b = tracks[3][0]["id"], tracks[3][1]["id"]
+    for t in truths[3:]:
+        for rec in tracks[t.sequence]:
+            rec["id"] = {a: b, b: a}.get(rec["id"], rec["id"])
+    swapped = score(truths, tracks, masks, rays)
+    assert swapped["id_switches"] == 2
+    assert swapped["mota"] < 1.0
