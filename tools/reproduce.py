@@ -190,7 +190,8 @@ def figure1(seeds: Sequence[int], sweep: bool) -> FigureResult:
     assert info is not None
 
     def target_of(truth: FrameTruth, mask: BOOL) -> Target:
-        return Target(pixel=info.seed_pixel, point=tuple(float(c) for c in info.centroid))
+        x, y, z = (float(c) for c in info.centroid)
+        return Target(pixel=info.seed_pixel, point=(x, y, z))
 
     subject = run_subject("paper-fig1", info.name, info.id, target_of, cases, seeds)
     inten, rng3d, img05, img2 = (subject.outcome(c.label) for c in cases)

@@ -54,7 +54,7 @@ def energy_of(labels: BOOL, cost1: F64, cost0: F64, weights: F64) -> float:
     """E(w) of a labelling (True = target): unary costs plus the weights of cut edges."""
     total = float(np.where(labels, cost1, cost0).sum())
     for k in range(len(OFFSETS)):
-        sp, sq = pair_slices(labels.shape, k)  # type: ignore[arg-type]
+        sp, sq = pair_slices(labels.shape, k)
         total += float(weights[k][sp][labels[sp] != labels[sq]].sum())
     return total
 
@@ -137,7 +137,7 @@ def range_weights(
         raise ValueError("give both grey and sigma_i, or neither")
     weights = np.zeros((len(OFFSETS), *valid.shape))
     for k in range(len(OFFSETS)):
-        sp, sq = pair_slices(valid.shape, k)  # type: ignore[arg-type]
+        sp, sq = pair_slices(valid.shape, k)
         exponent = ((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1) / (-2.0 * sigma_s**2)
         if grey is not None and sigma_i is not None:
             exponent -= (grey[sp] - grey[sq]) ** 2 / (2.0 * sigma_i**2)
@@ -187,7 +187,7 @@ def neighbour_distance(xyz: F64, valid: BOOL) -> float:
     of "the same surface" (pixel footprint plus range noise)."""
     steps = []
     for k in (0, 1):
-        sp, sq = pair_slices(valid.shape, k)  # type: ignore[arg-type]
+        sp, sq = pair_slices(valid.shape, k)
         both = valid[sp] & valid[sq]
         steps.append(np.sqrt(((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1))[both])
     joined = np.concatenate(steps)
@@ -198,7 +198,7 @@ def neighbour_step(grey: F64, valid: BOOL) -> float:
     """Median |g_p − g_q| between valid horizontal and vertical neighbours, grey levels."""
     steps = []
     for k in (0, 1):
-        sp, sq = pair_slices(valid.shape, k)  # type: ignore[arg-type]
+        sp, sq = pair_slices(valid.shape, k)
         both = valid[sp] & valid[sq]
         steps.append(np.abs(grey[sp] - grey[sq])[both])
     joined = np.concatenate(steps)

@@ -290,7 +290,7 @@ def build_problem(
     """The unary costs and edge weights of `energy` for this frame."""
     grey = intensity * (255.0 / model.intensity_ref)
     if energy.seeded:
-        cost1, cost0 = en.seed_costs(valid.shape, model.pixel)  # type: ignore[arg-type]
+        cost1, cost0 = en.seed_costs(valid.shape, model.pixel)
         if energy is Energy.RANGE_SMOOTH:
             weights = en.range_weights(xyz, valid, model.sigma_s)
         else:
@@ -301,5 +301,5 @@ def build_problem(
         cost1 = cost1 + en.range_penalty(xyz, valid, np.array(model.mu_d), params.beta_range)
     elif energy is Energy.IMAGE_PLANE:
         cost1 = cost1 + en.image_penalty(valid, model.pixel, params.beta_image)
-    weights = en.potts_weights(valid.shape, params.smoothness)  # type: ignore[arg-type]
+    weights = en.potts_weights(valid.shape, params.smoothness)
     return Problem(cost1, cost0, weights)
