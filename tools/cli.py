@@ -19,6 +19,7 @@ COMMANDS = [
     "tofcut.tools.cmd_track",
     "tofcut.tools.cmd_evaluate",
     "tofcut.tools.cmd_scenes",
+    "tofcut.tools.cmd_reproduce",
 ]
 """Each module has `register(subparsers)`, which adds its parser with `func` set."""
 

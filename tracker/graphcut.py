@@ -1,0 +1,209 @@
+"""Minimising a binary energy (see `tofcut.tracker.energy`) by graph cut with PyMaxflow.
+
+Three solvers with the same minima:
+
+- `solve_reference`: the obvious one, a full-frame grid graph. It is the yardstick the fast
+  solvers are tested and benchmarked against, and stays as such.
+- `solve_reduced`, for the data-term energies: pixels whose label is forced by their unary
+  cost are fixed without a graph; only the rest go into it.
+- `solve_cropped`, for the §4.2 energies: the graph of a window around the seed, grown until
+  a certificate shows that nothing outside it can change the minimum.
+
+Why `solve_reduced` is exact (persistency). Let δ_p = cost1[p] − cost0[p] and W_p the sum of
+the weights of p's edges. If δ_p > W_p, relabelling p from target to background changes any
+labelling's energy by at most −δ_p + W_p < 0, so no minimum has p in the target; likewise
+δ_p < −W_p forces the target. Fixing such pixels and folding each edge to a fixed neighbour
+into the free pixel's unary cost leaves an energy over the free pixels whose minima are
+exactly the original minima restricted to them (all minima agree on the fixed pixels), so
+the rule applies again to it, with W_p counting only edges to free pixels. The first pass
+uses an upper bound of every W_p, which fixes fewer pixels but costs one comparison.
+
+Why `solve_cropped` is exact (a lower bound met). For a window Q, dropping the non-negative
+weights of the edges that leave Q and bounding each outside pixel's unary cost from below
+gives, for every labelling w,
+    E(w) ≥ E_Q(w restricted to Q) + Σ_{p∉Q} min(cost1[p], cost0[p]),
+so E* ≥ min E_Q + Σ_{p∉Q} min(cost1, cost0). Take a minimiser of E_Q and label everything
+outside Q background. If every outside pixel prefers the background (cost0 ≤ cost1; for §4.2
+every pixel but the seed, which starts inside Q) and no pixel on a side of Q that borders the
+rest of the frame is labelled target (so no edge leaving Q is cut), its energy equals that
+lower bound: it is a global minimum. Otherwise the sides the target touches are pushed out
+and the window is solved again, at worst up to the whole frame. Parts of the frame the
+weights disconnect from the seed are thus never put into a graph.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import maxflow
+import numpy as np
+import numpy.typing as npt
+
+from tofcut.tracker.energy import OFFSETS
+
+F64 = npt.NDArray[np.float64]
+BOOL = npt.NDArray[np.bool_]
+I64 = npt.NDArray[np.int64]
+
+FULL_GRAPH_SHARE = 0.5
+"""`solve_reduced` cuts the full grid when more than this share of the pixels stays free."""
+MIN_SETTLED_SHARE = 0.25
+"""`solve_reduced` stops its rounds when one would settle less than this share of the free
+pixels (a round costs about as much as cutting a quarter of them)."""
+
+STRUCTURES = [np.pad(np.array([[1]]), ((1 + dv, 1 - dv), (1 + du, 1 - du))) for dv, du in OFFSETS]
+"""PyMaxflow grid structures, one per direction of OFFSETS (a 1 at the neighbour's place)."""
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """A binary energy on an H×W grid: unary costs of each label and 8-neighbour weights."""
+
+    cost1: F64
+    """(H, W) cost of labelling the pixel target."""
+    cost0: F64
+    """(H, W) cost of labelling the pixel background."""
+    weights: F64
+    """(4, H, W) non-negative edge weights along `energy.OFFSETS` (see `tofcut.tracker.energy`)."""
+
+    def __post_init__(self) -> None:
+        shape = self.cost1.shape
+        if len(shape) != 2 or self.cost0.shape != shape:
+            raise ValueError(f"unary costs must be two equal (H, W) arrays, not {shape}")
+        if self.weights.shape != (len(OFFSETS), *shape):
+            raise ValueError(f"weights must be (4, H, W), not {self.weights.shape}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.cost1.shape[0], self.cost1.shape[1])
+
+
+@dataclass(frozen=True, eq=False)
+class Solution:
+    """A minimising labelling and how much of the problem went into the graph."""
+
+    labels: BOOL
+    """(H, W), True = target."""
+    graph_nodes: int
+    """Pixels that were nodes of the graph cut (the rest were decided without it)."""
+
+
+def solve_reference(problem: Problem) -> Solution:
+    """The full-frame graph: one node per pixel, every edge, every terminal link."""
+    h, w = problem.shape
+    graph = maxflow.Graph[float](h * w, len(OFFSETS) * h * w)
+    nodes = graph.add_grid_nodes((h, w))
+    for k, structure in enumerate(STRUCTURES):
+        graph.add_grid_edges(nodes, weights=problem.weights[k], structure=structure, symmetric=True)
+    graph.add_grid_tedges(nodes, problem.cost1, problem.cost0)
+    graph.maxflow()
+    return Solution(np.asarray(graph.get_grid_segments(nodes), dtype=bool), h * w)
+
+
+def solve_reduced(problem: Problem, max_rounds: int = 20) -> Solution:
+    """Fix every pixel whose label its unary cost forces (repeatedly), cut the rest; when
+    most of the frame stays free, the full grid graph is the quicker way to cut it."""
+    h, w = problem.shape
+    n = h * w
+    delta = (problem.cost1 - problem.cost0).reshape(-1)
+    labels = delta < 0
+    bound = 2.0 * float(problem.weights.max(axis=(1, 2)).sum())  # ≥ every pixel's W_p
+    free = np.flatnonzero(np.abs(delta) <= bound)
+    if free.size > FULL_GRAPH_SHARE * n:
+        return solve_reference(problem)
+    is_free = np.zeros(n, dtype=bool)
+    is_free[free] = True
+    flat_weights = problem.weights.reshape(-1)
+    nbr, wts = _neighbours(free, w, n, flat_weights)
+    for _ in range(max_rounds):
+        if free.size == 0:
+            break
+        nfree = is_free.take(nbr, mode="clip")
+        # δ with fixed neighbours folded in, against the weight still free to pull either way
+        fixed_w = np.where(nfree, 0.0, wts)
+        sign = np.where(labels.take(nbr, mode="clip"), -1.0, 1.0)
+        d = delta[free] + (fixed_w * sign).sum(axis=1)
+        slack = (wts * nfree).sum(axis=1)
+        settled = (d > slack) | (d < -slack)
+        count = int(np.count_nonzero(settled))
+        if count < MIN_SETTLED_SHARE * free.size:
+            break  # another round would cost more than the nodes it saves
+        done = free[settled]
+        labels[done] = d[settled] < 0
+        is_free[done] = False
+        keep = ~settled
+        free, nbr, wts = free[keep], nbr[keep], wts[keep]
+    m = free.size
+    if m == 0:
+        return Solution(labels.reshape(h, w), 0)
+    nfree = is_free.take(nbr, mode="clip")
+    nlab = labels.take(nbr, mode="clip")
+    fixed_w = np.where(nfree, 0.0, wts)
+    cost1 = problem.cost1.reshape(-1)[free] + (fixed_w * ~nlab).sum(axis=1)
+    cost0 = problem.cost0.reshape(-1)[free] + (fixed_w * nlab).sum(axis=1)
+    index = np.zeros(n, dtype=np.int64)
+    index[free] = np.arange(m)
+    graph = maxflow.Graph[float](m, 4 * m)
+    ids = graph.add_nodes(m)
+    forward = len(OFFSETS)
+    keep = nfree[:, :forward] & (wts[:, :forward] > 0)
+    rows = np.nonzero(keep)[0]
+    if rows.size:
+        cap = wts[:, :forward][keep]
+        graph.add_edges(ids[rows], index[nbr[:, :forward][keep]], cap, cap)
+    graph.add_grid_tedges(ids, cost1, cost0)
+    graph.maxflow()
+    labels[free] = np.asarray(graph.get_grid_segments(ids), dtype=bool)
+    return Solution(labels.reshape(h, w), m)
+
+
+def _neighbours(pixels: I64, width: int, n: int, flat_weights: F64) -> tuple[I64, F64]:
+    """(m, 8) flat indices of the 8 neighbours of flat `pixels` (forward OFFSETS, then
+    backward) and the weights of the edges to them.
+
+    A neighbour index may wrap round a row or fall outside the frame; its weight is then 0
+    (a forward weight is stored at the pixel and is 0 for an edge leaving the frame; a
+    backward one is stored at the wrapped-to pixel, whose edge in that direction leaves the
+    frame too), so callers need no mask as long as they look it up with mode="clip".
+    """
+    forward = np.array([dv * width + du for dv, du in OFFSETS], dtype=np.int64)
+    offsets = np.concatenate([forward, -forward])
+    shift = np.concatenate([np.zeros_like(forward), -forward]) + np.tile(
+        np.arange(len(OFFSETS), dtype=np.int64) * n, 2
+    )
+    nbr = pixels[:, None] + offsets[None, :]
+    at = pixels[:, None] + shift[None, :]
+    inside = (nbr >= 0) & (nbr < n)
+    return nbr, np.where(inside, flat_weights.take(at, mode="clip"), 0.0)
+
+
+def solve_cropped(problem: Problem, centre: tuple[int, int], half_size: int = 24) -> Solution:
+    """Cut a window around `centre` (u, v), grown until certified (module docstring)."""
+    h, w = problem.shape
+    rows, cols = np.nonzero(problem.cost0 > problem.cost1)
+    u, v = centre
+    v0 = max(min(v, int(rows.min(initial=v))) - half_size, 0)
+    v1 = min(max(v, int(rows.max(initial=v))) + half_size + 1, h)
+    u0 = max(min(u, int(cols.min(initial=u))) - half_size, 0)
+    u1 = min(max(u, int(cols.max(initial=u))) + half_size + 1, w)
+    nodes = 0
+    while True:
+        window = (slice(v0, v1), slice(u0, u1))
+        sub = Problem(
+            problem.cost1[window], problem.cost0[window], problem.weights[(slice(None), *window)]
+        )
+        inner = solve_reference(sub).labels
+        nodes += inner.size
+        grow_up = v0 > 0 and bool(inner[0].any())
+        grow_down = v1 < h and bool(inner[-1].any())
+        grow_left = u0 > 0 and bool(inner[:, 0].any())
+        grow_right = u1 < w and bool(inner[:, -1].any())
+        if not (grow_up or grow_down or grow_left or grow_right):
+            labels = np.zeros((h, w), dtype=bool)
+            labels[window] = inner
+            return Solution(labels, nodes)
+        dv, du = v1 - v0, u1 - u0
+        v0 = max(v0 - dv, 0) if grow_up else v0
+        v1 = min(v1 + dv, h) if grow_down else v1
+        u0 = max(u0 - du, 0) if grow_left else u0
+        u1 = min(u1 + du, w) if grow_right else u1
