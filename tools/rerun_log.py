@@ -228,13 +228,20 @@ class FrameLogger:
         """A device or pipeline event, at the time of the last frame written."""
         self.rec.log(DEVICE_EVENTS, rr.TextLog(text, level=level))
 
-    def close(self, timeout_s: float | None) -> None:
-        """Flush, then close the sinks: a file gets its footer and is complete."""
-        if timeout_s is None:
-            self.rec.flush()
-        else:
-            self.rec.flush(timeout_sec=timeout_s)
-        self.rec.disconnect()
+    def close(self, timeout_s: float | None, keep_serving: bool = False) -> None:
+        """Flush, then close the sinks: a file gets its footer and is complete.
+
+        `keep_serving` leaves a gRPC server up for viewers that connect after the run (it
+        stops when the recording stream is collected, at the latest at exit).
+        """
+        try:
+            if timeout_s is None:
+                self.rec.flush()
+            else:
+                self.rec.flush(timeout_sec=timeout_s)
+        finally:
+            if not keep_serving:
+                self.rec.disconnect()
 
     def _update_context(self, tracked: TrackedFrame) -> None:
         """Re-log the annotation context when the set of live ids changes (ids never repeat)."""

@@ -246,7 +246,8 @@ class RerunSink:
         """Write what is queued and close the recording (a file gets its footer); idempotent.
 
         A file waits for every frame. A live viewer gets `LIVE_CLOSE_TIMEOUT_S`; what it has
-        not taken by then is counted as dropped.
+        not taken by then is counted as dropped. A served recording stays served while this
+        object lives (see `rerun_target.wait_while_serving`).
         """
         with self._cond:
             if self._closing:
@@ -265,9 +266,10 @@ class RerunSink:
             return
         if self._error is None:
             try:
-                self._writer.close(timeout)
+                self._writer.close(timeout, keep_serving=self.target.kind == "serve")
             except Exception as exc:
-                self._error = exc
+                if self.lossless:  # a live viewer that is slow to take the last data is no error
+                    self._error = exc
         if self._error is not None:
             raise RerunOutputError(f"rerun output failed: {self._error}") from self._error
 

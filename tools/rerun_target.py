@@ -108,5 +108,8 @@ def target_from_args(args: argparse.Namespace, now: dt.datetime | None = None) -
 
 
 def wait_while_serving(args: argparse.Namespace) -> None:
-    """After the run, keep a served recording up until Ctrl-C (rerun's `script_teardown`)."""
+    """After the run, keep a served recording up until Ctrl-C (rerun's `script_teardown`).
+
+    Call it after `RerunSink.close()`, while the sink is still referenced: it holds the server.
+    """
     rr.script_teardown(args)
