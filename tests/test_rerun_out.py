@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import os
 import signal
@@ -346,6 +347,10 @@ def test_a_stalled_live_sink_drops_the_oldest_frames_and_log_never_waits(
     assert stats.dropped == sink.dropped == len(frames) - 1 - 4
     stall.release.set()
     sink.close()
+    assert (
+        sink.summary()
+        == f"rerun: 5 of {len(frames)} frames written to {path}, {stats.dropped} dropped to keep up"
+    )
     # The file holds the frame that was being written and the newest four.
     assert frame_sequences(path) == [0, *[t.sequence for t, _ in frames[-4:]]]
     dropped = rows_on(path, "status/rerun_dropped", "Scalars:scalars")
@@ -528,3 +533,23 @@ def test_a_sink_from_the_options_says_where_it_writes(tmp_path, monkeypatch, cap
     sink.close()
     assert sink.summary() == f"rerun: 2 of 2 frames written to {path}"
     assert frame_sequences(path) == [0, 1]
+
+
+def test_a_frame_without_tracks_clears_the_boxes_and_trails(tmp_path, run):
+    calibration, belt, frames = run
+    tracked, status = frames[3]
+    empty = dataclasses.replace(
+        tracked, labels=np.zeros_like(tracked.labels), tracks=(), born=(), ended=()
+    )
+    path = tmp_path / "empty.rrd"
+    with RerunSink(calibration, RerunTarget.save(path), belt) as sink:
+        sink.log(*frames[2])
+        sink.log(empty, status)
+    assert rrd_verify(path).returncode == 0
+    boxes = rows_on(path, "world/tracks", "Boxes3D:half_sizes")
+    assert len(boxes[2]) == len(frames[2][0].tracks)
+    assert boxes[3] == []
+    trails = rows_on(path, "world/trails", "LineStrips3D:strips")
+    assert trails[3] == []
+    mask = rows_on(path, "world/camera/tracks", "SegmentationImage:buffer")[3]
+    assert not np.any(np.array(mask, np.uint8))

@@ -181,10 +181,12 @@ class RerunSink:
     def summary(self) -> str:
         """One line for the end of a run: what was written where, what was dropped."""
         s = self.stats
-        where = self.target.path if self.target.kind == "save" else f"the {self.target.kind} target"
-        text = f"rerun: {s.written} of {s.logged} frames written to {where}"
+        if self.target.kind == "save":
+            text = f"rerun: {s.written} of {s.logged} frames written to {self.target.path}"
+        else:
+            text = f"rerun: {s.written} of {s.logged} frames sent ({self.target.kind})"
         if s.dropped:
-            text += f", {s.dropped} dropped (the viewer was behind)"
+            text += f", {s.dropped} dropped to keep up"
         if s.waits:
             text += f"; the file writer held up the pipeline {s.waits} times ({s.waited_s:.2f} s)"
         return text
