@@ -1,0 +1,555 @@
+"""Rerun output: recordings of an emulated run, read back with rerun's own tools; the queue."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime as dt
+import os
+import signal
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rerun as rr
+import rerun_cli
+from rerun.chunk import RrdReader
+
+from tofcut.driver import Camera
+from tofcut.driver.calibration import Calibration
+from tofcut.driver.config import CameraConfig, frame_period_for
+from tofcut.sim import EmulatedBackend, EmulatedCamera, FrameTruth, open_scene
+from tofcut.tools import rerun_log
+from tofcut.tools.rerun_log import FrameLogger, track_color
+from tofcut.tools.rerun_sink import RerunOutputError, RerunSink, measure_logging_cost
+from tofcut.tools.rerun_target import (
+    RerunTarget,
+    add_rerun_options,
+    default_recording_path,
+    target_from_args,
+)
+from tofcut.tools.status import PipelineStatus
+from tofcut.tracker.tracks import Track, TrackedFrame
+
+HERE = Path(__file__).resolve().parent
+RERUN_CLI = Path(rerun_cli.__file__).with_name("rerun")
+"""The `rerun` command that comes with rerun-sdk."""
+FRAMES = 24
+FPS = 5.0
+"""A slow frame rate, so the belt carries boxes in and out of view within a few frames."""
+
+Run = list[tuple[TrackedFrame, PipelineStatus]]
+
+
+# --- an emulated run, tracked by its ground truth -------------------------------------------
+
+
+def truth_tracks(
+    frame_xyz: np.ndarray,
+    valid: np.ndarray,
+    truth: FrameTruth,
+    dt_s: float,
+    previous: dict[int, np.ndarray],
+) -> list[Track]:
+    """The tracks a perfect tracker would report: one per object in view, from the truth."""
+    tracks = []
+    for obj in truth.objects:
+        mask = truth.labels == obj.id
+        if not mask.any():
+            continue
+        rows, cols = np.nonzero(mask)
+        before = previous.get(obj.id)
+        velocity = np.zeros(3) if before is None else (obj.centroid - before) / dt_s
+        tracks.append(
+            Track(
+                id=obj.id,
+                centroid=obj.centroid,
+                velocity=velocity,
+                box_min=obj.extent_min,
+                box_max=obj.extent_max,
+                bbox=(int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1),
+                pixels=int(mask.sum()),
+                points=frame_xyz[mask & valid].astype(np.float32),
+            )
+        )
+    return tracks
+
+
+def emulated_run(frames: int = FRAMES, fps: float = FPS) -> tuple[Calibration, np.ndarray, Run]:
+    """The conveyor through the emulated camera and the real driver, tracked by ground truth."""
+    source = open_scene("conveyor", seed=0)
+    assert source.belt is not None
+    emulator = EmulatedCamera(source, realtime=False, registers=source.settings.registers)
+    run: Run = []
+    previous: dict[int, np.ndarray] = {}
+    with Camera.open(backend=EmulatedBackend([emulator])) as cam:
+        c = cam.config
+        cam.configure(
+            CameraConfig(c.mod_freq_code, c.integration, frame_period_for(fps), c.trigger_mode)
+        )
+        for frame in cam.frames(count=frames):
+            truth = emulator.truth(frame.sequence)
+            assert isinstance(truth, FrameTruth)
+            tracks = truth_tracks(frame.xyz, frame.valid, truth, 1.0 / fps, previous)
+            ids = {t.id for t in tracks}
+            tracked = TrackedFrame(
+                frame=frame,
+                labels=truth.labels.astype(np.uint16),
+                tracks=tuple(tracks),
+                born=tuple(sorted(ids - previous.keys())),
+                ended=tuple(sorted(previous.keys() - ids)),
+            )
+            previous = {t.id: t.centroid for t in tracks}
+            status = PipelineStatus(
+                fps=fps,
+                latency_s=0.012 + 0.001 * (frame.sequence % 5),
+                frames=len(run) + 1,
+                dropped=cam.stats.lost,
+                tracks=len(tracks),
+                belt_speed_mps=source.belt.speed_mps,
+            )
+            run.append((tracked, status))
+        calibration = cam.calibration
+    return calibration, source.belt.direction, run
+
+
+@pytest.fixture(scope="module")
+def run() -> tuple[Calibration, np.ndarray, Run]:
+    return emulated_run()
+
+
+def write_recording(path: Path, calibration: Calibration, belt: np.ndarray, run: Run) -> RerunSink:
+    sink = RerunSink(calibration, RerunTarget.save(path), belt, name="test run")
+    sink.event("camera stalled a request", "WARN")
+    for tracked, status in run:
+        sink.log(tracked, status)
+    sink.event("camera disconnected", "ERROR")
+    sink.close()
+    return sink
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory, run) -> tuple[Path, RerunSink]:
+    path = tmp_path_factory.mktemp("rrd") / "run.rrd"
+    sink = write_recording(path, *run)
+    return path, sink
+
+
+# --- reading a recording back with rerun's own reader ---------------------------------------
+
+
+def chunks(path: Path) -> list[rr.chunk.Chunk]:
+    return list(RrdReader(path).stream())
+
+
+def rrd_verify(path: Path) -> subprocess.CompletedProcess[str]:
+    """Rerun's own check that a file loads and is interpreted correctly."""
+    env = dict(os.environ, RERUN_ANALYTICS="0")
+    cmd = [str(RERUN_CLI), "rrd", "verify", str(path)]
+    return subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+
+
+def all_rows(
+    path: Path,
+    entity: str,
+    component: str,
+    timeline: str = "sequence",
+) -> list[tuple[object, object]]:
+    """(time, value) of every temporal row of one component of one entity, on one timeline.
+
+    Each value is the row's list of instances; the time is None where the row is not on the
+    timeline (logged before the first frame).
+    """
+    out = []
+    for ch in chunks(path):
+        if ch.entity_path != f"/{entity}" or ch.is_static:
+            continue
+        batch = ch.to_record_batch()
+        names = [n for n in batch.schema.names if n.endswith(component)]
+        if not names:
+            continue
+        values = batch.column(names[0]).to_pylist()
+        has_time = timeline in batch.schema.names
+        times = batch.column(timeline).to_pylist() if has_time else [None] * len(values)
+        out += [(t, v) for t, v in zip(times, values, strict=True) if v is not None]
+    return out
+
+
+def rows_on(path: Path, entity: str, component: str, timeline: str = "sequence") -> dict:
+    """{time: value} of one component of one entity, on one timeline."""
+    return dict(all_rows(path, entity, component, timeline))
+
+
+# --- the recording ----------------------------------------------------------------------------
+
+
+def test_rerun_verifies_the_recording(recording):
+    path, _ = recording
+    result = rrd_verify(path)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_the_recording_holds_every_entity_and_a_blueprint(recording):
+    path, _ = recording
+    entities = {ch.entity_path for ch in chunks(path)}
+    expected = {
+        "/world",
+        "/world/camera",
+        "/world/camera/depth",
+        "/world/camera/amplitude",
+        "/world/camera/intensity",
+        "/world/camera/tracks",
+        "/world/points",
+        "/world/tracks",
+        "/world/trails",
+        "/world/belt",
+        "/events/tracks",
+        "/events/device",
+    } | {f"/status/{name}" for name in rerun_log.SERIES}
+    assert expected <= entities
+    assert len(RrdReader(path).blueprints()) == 1
+
+
+def test_every_frame_is_on_both_timelines(recording, run):
+    path, sink = recording
+    _, _, frames = run
+    depth = rows_on(path, "world/camera/depth", "DepthImage:buffer")
+    assert sorted(depth) == [t.sequence for t, _ in frames]
+    assert sink.stats.written == len(frames)
+    assert sink.dropped == 0
+    device = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="device_time")
+    us = dt.timedelta(microseconds=1)
+    assert sorted(device) == [t.frame.device_time_us * us for t, _ in frames]
+
+
+def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    tracked = frames[12][0]
+    assert len(tracked.tracks) >= 3
+    buffers = rows_on(path, "world/camera/tracks", "SegmentationImage:buffer")
+    h, w = tracked.labels.shape
+    mask = np.array(buffers[tracked.sequence], np.uint8).view(np.uint16).reshape(h, w)
+    assert np.array_equal(mask, tracked.labels)
+    assert set(np.unique(mask)) - {0} == {t.id for t in tracked.tracks}
+    # The annotation context in force at that frame names and colours every id in the mask.
+    contexts = rows_on(path, "world", "AnnotationContext:context")
+    latest = contexts[max(t for t in contexts if t <= tracked.sequence)]
+    (context,) = latest
+    classes = {c["class_id"]: c["class_description"]["info"] for c in context}
+    for i in {t.id for t in tracked.tracks}:
+        assert classes[i]["label"] == f"track {i}"
+        r, g, b = track_color(i)
+        assert classes[i]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
+
+
+def test_points_boxes_and_trails_carry_the_track_colours(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    tracked = frames[12][0]
+    colours = np.array(rows_on(path, "world/points", "Points3D:colors")[tracked.sequence])
+    for t in tracked.tracks:
+        r, g, b = track_color(t.id)
+        rgba = (r << 24) | (g << 16) | (b << 8) | 0xFF
+        assert np.count_nonzero(colours == rgba) == len(t.points)
+    boxes = rows_on(path, "world/tracks", "Boxes3D:class_ids")[tracked.sequence]
+    assert sorted(boxes) == sorted(t.id for t in tracked.tracks)
+    trails = rows_on(path, "world/trails", "LineStrips3D:strips")[tracked.sequence]
+    older = [t for t in tracked.tracks if t.id not in tracked.born]  # a trail needs 2 points
+    assert 0 < len(older) < len(tracked.tracks)
+    assert len(trails) == len(older)
+
+
+def test_track_colours_depend_on_the_id_alone():
+    assert track_color(7) == track_color(7)
+    assert len({track_color(i) for i in range(1, 200)}) == 199
+    assert all(max(track_color(i)) == 255 for i in range(1, 50))  # bright on any background
+
+
+def test_health_and_events_are_logged(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    fps = rows_on(path, "status/fps", "Scalars:scalars")
+    assert len(fps) == len(frames)
+    tracks = rows_on(path, "status/tracks", "Scalars:scalars")
+    assert [tracks[t.sequence] for t, _ in frames] == [[float(s.tracks)] for _, s in frames]
+    latency = rows_on(path, "status/latency_ms", "Scalars:scalars")
+    assert latency[5] == pytest.approx([frames[5][1].latency_s * 1000])
+    born_ended = sorted(
+        [(t.sequence, f"track {i} born") for t, _ in frames for i in t.born]
+        + [(t.sequence, f"track {i} ended") for t, _ in frames for i in t.ended]
+    )
+    assert any(t.ended for t, _ in frames)
+    assert any(t.born for t, _ in frames[1:])
+    logged = all_rows(path, "events/tracks", "TextLog:text")
+    assert sorted((t, text) for t, (text,) in logged) == born_ended
+    device = all_rows(path, "events/device", "TextLog:text")
+    # The first event came before any frame, so it is on no frame timeline.
+    assert sorted(device, key=lambda row: row[0] or -1) == [
+        (None, ["camera stalled a request"]),
+        (frames[-1][0].sequence, ["camera disconnected"]),
+    ]
+    levels = all_rows(path, "events/device", "TextLog:level")
+    assert sorted(level for _, (level,) in levels) == ["ERROR", "WARN"]
+
+
+# --- the queue: a slow viewer never slows the pipeline; a file loses nothing -----------------
+
+
+class Stall:
+    """Blocks the sink's writer on its first frame until released."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.entered = threading.Event()
+        self.release = threading.Event()
+        original = FrameLogger.write_frame
+
+        def write_frame(logger: FrameLogger, *args: object) -> None:
+            if not self.entered.is_set():
+                self.entered.set()
+                assert self.release.wait(60), "the test never released the writer"
+            original(logger, *args)
+
+        monkeypatch.setattr(FrameLogger, "write_frame", write_frame)
+
+
+def frame_sequences(path: Path) -> list[int]:
+    return sorted(rows_on(path, "world/camera/depth", "DepthImage:buffer"))
+
+
+def test_a_stalled_live_sink_drops_the_oldest_frames_and_log_never_waits(
+    tmp_path, run, monkeypatch
+):
+    calibration, belt, frames = run
+    stall = Stall(monkeypatch)
+    path = tmp_path / "live.rrd"
+    sink = RerunSink(calibration, RerunTarget.save(path), belt, queue_frames=4, lossless=False)
+    sink.log(*frames[0])
+    assert stall.entered.wait(60)  # the worker is now stuck inside the writer
+    done = threading.Event()
+
+    def pipeline() -> None:
+        for tracked, status in frames[1:]:
+            sink.log(tracked, status)
+        done.set()
+
+    thread = threading.Thread(target=pipeline, daemon=True)
+    thread.start()
+    # Every log() returns while the writer is still blocked: the pipeline is never held up.
+    assert done.wait(60)
+    assert not stall.release.is_set()
+    stats = sink.stats
+    assert stats.logged == len(frames)
+    assert stats.written == 0
+    assert stats.dropped == sink.dropped == len(frames) - 1 - 4
+    stall.release.set()
+    sink.close()
+    assert (
+        sink.summary()
+        == f"rerun: 5 of {len(frames)} frames written to {path}, {stats.dropped} dropped to keep up"
+    )
+    # The file holds the frame that was being written and the newest four.
+    assert frame_sequences(path) == [0, *[t.sequence for t, _ in frames[-4:]]]
+    dropped = rows_on(path, "status/rerun_dropped", "Scalars:scalars")
+    assert dropped[frames[-1][0].sequence] == [float(stats.dropped)]
+
+
+def test_a_file_loses_nothing_even_when_its_writer_stalls(tmp_path, run, monkeypatch):
+    calibration, belt, frames = run
+    stall = Stall(monkeypatch)
+    waiting = threading.Event()
+    wait_for_room = RerunSink._wait_for_room
+
+    def noted_wait(sink: RerunSink) -> None:
+        waiting.set()
+        wait_for_room(sink)
+
+    monkeypatch.setattr(RerunSink, "_wait_for_room", noted_wait)
+    path = tmp_path / "file.rrd"
+    sink = RerunSink(calibration, RerunTarget.save(path), belt, queue_frames=2)
+    assert sink.lossless
+    thread = threading.Thread(target=lambda: [sink.log(*f) for f in frames], daemon=True)
+    thread.start()
+    assert waiting.wait(60)  # the queue is full: log() waits rather than drop
+    stall.release.set()
+    thread.join(60)
+    assert not thread.is_alive()
+    sink.close()
+    stats = sink.stats
+    assert stats.dropped == 0
+    assert stats.written == len(frames)
+    assert stats.waits >= 1
+    assert frame_sequences(path) == [t.sequence for t, _ in frames]
+
+
+def test_a_live_viewer_that_never_recovers_cannot_hold_up_close(tmp_path, run, monkeypatch):
+    calibration, belt, frames = run
+    stall = Stall(monkeypatch)
+    monkeypatch.setattr("tofcut.tools.rerun_sink.LIVE_CLOSE_TIMEOUT_S", 0.05)
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=False)
+    sink.log(*frames[0])
+    assert stall.entered.wait(60)
+    sink.log(*frames[1])
+    sink.log(*frames[2])
+    sink.close()  # returns although the writer is still stuck
+    assert sink.dropped == 2
+    stall.release.set()
+
+
+def test_a_failing_writer_is_reported_not_hidden(tmp_path, run, monkeypatch):
+    calibration, belt, frames = run
+
+    def broken(*args: object) -> None:
+        raise OSError("No space left on device")
+
+    monkeypatch.setattr(FrameLogger, "write_frame", broken)
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt)
+    sink.log(*frames[0])
+    with pytest.raises(RerunOutputError, match="No space left"):
+        sink.close()
+    with pytest.raises(RerunOutputError, match="No space left"):
+        sink.log(*frames[1])
+
+
+CTRL_C_SCRIPT = """
+import signal, sys
+sys.path.insert(0, sys.argv[2])
+from test_rerun_out import emulated_run
+from tofcut.tools.rerun_sink import RerunSink
+from tofcut.tools.rerun_target import RerunTarget
+calibration, belt, run = emulated_run(frames=4)
+sink = RerunSink(calibration, RerunTarget.save(sys.argv[1]), belt)
+for n in range(int(sys.argv[3])):
+    sink.log(*run[n % len(run)])
+print("logged", flush=True)
+signal.pause()  # Ctrl-C lands here; nothing closes the sink but the interpreter's exit
+"""
+
+
+def test_ctrl_c_leaves_a_complete_file_with_every_frame(tmp_path):
+    path = tmp_path / "interrupted.rrd"
+    frames = 150
+    proc = subprocess.Popen(
+        [sys.executable, "-c", CTRL_C_SCRIPT, str(path), str(HERE), str(frames)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == "logged"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert "KeyboardInterrupt" in err
+    result = rrd_verify(path)
+    assert result.returncode == 0, result.stdout + result.stderr
+    rows = sum(
+        ch.num_rows
+        for ch in chunks(path)
+        if ch.entity_path == "/world/camera/depth" and not ch.is_static
+    )
+    assert rows == frames
+
+
+# --- options ---------------------------------------------------------------------------------
+
+
+def parse(*argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--fps", type=float)  # a camera option beside them: no clash
+    add_rerun_options(parser)
+    return parser.parse_args(argv)
+
+
+NOW = dt.datetime(2026, 5, 4, 13, 2, 1)
+
+
+def test_no_option_saves_a_dated_file_in_the_working_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    target = target_from_args(parse(), NOW)
+    assert target == RerunTarget.save(tmp_path / "tofcut-20260504-130201.rrd")
+    assert target.lossless
+    assert str(target.path) in target.describe()
+    assert target_from_args(parse("--headless"), NOW) == target
+    target.path.touch()
+    assert default_recording_path(NOW).name == "tofcut-20260504-130201-2.rrd"
+
+
+@pytest.mark.parametrize(
+    ("argv", "expected"),
+    [
+        (["--save", "a.rrd"], RerunTarget.save("a.rrd")),
+        (["--spawn"], RerunTarget("spawn")),
+        (["--connect"], RerunTarget("connect")),
+        (
+            ["--url", "rerun+http://10.0.0.2:9876/proxy"],
+            RerunTarget("connect", url="rerun+http://10.0.0.2:9876/proxy"),
+        ),
+        (["--connect", "--save", "a.rrd"], RerunTarget("connect")),  # rerun's precedence
+        (["--serve"], RerunTarget("serve")),
+        (["--stdout", "--serve"], RerunTarget("stdout")),
+    ],
+)
+def test_rerun_options_pick_the_target(argv, expected):
+    target = target_from_args(parse(*argv), NOW)
+    assert target == expected
+    assert target.lossless == (expected.kind == "save")
+
+
+def test_a_target_saves_exactly_when_it_has_a_path():
+    with pytest.raises(ValueError, match="path"):
+        RerunTarget("connect", path=Path("x.rrd"))
+    with pytest.raises(ValueError, match="path"):
+        RerunTarget("save")
+
+
+# --- the benchmark helper --------------------------------------------------------------------
+
+
+def test_logging_cost_is_measured_against_tracking_time(run):
+    calibration, belt, frames = run
+    cost = measure_logging_cost(frames, calibration, tracking_s=2.0, belt_direction=belt)
+    assert cost.frames == len(frames)
+    assert cost.cpu_s > 0
+    assert cost.log_calls_s > 0
+    assert cost.file_bytes > 0
+    assert 0 < cost.writer_cpu_s <= cost.cpu_s
+    assert cost.ratio == pytest.approx(cost.cpu_s / 2.0)
+    assert cost.cpu_ms_per_frame == pytest.approx(1000 * cost.cpu_s / len(frames))
+    with pytest.raises(ValueError, match="frame"):
+        measure_logging_cost([], calibration, tracking_s=1.0)
+
+
+def test_a_sink_from_the_options_says_where_it_writes(tmp_path, monkeypatch, capsys, run):
+    calibration, belt, frames = run
+    monkeypatch.chdir(tmp_path)
+    sink = RerunSink.from_args(parse(), calibration, belt, name="from args")
+    (path,) = tmp_path.glob("tofcut-*.rrd")
+    assert f"rerun: saving the recording to {path}" in capsys.readouterr().out
+    for tracked, status in frames[:2]:
+        sink.log(tracked, status)
+    sink.close()
+    assert sink.summary() == f"rerun: 2 of 2 frames written to {path}"
+    assert frame_sequences(path) == [0, 1]
+
+
+def test_a_frame_without_tracks_clears_the_boxes_and_trails(tmp_path, run):
+    calibration, belt, frames = run
+    tracked, status = frames[3]
+    empty = dataclasses.replace(
+        tracked, labels=np.zeros_like(tracked.labels), tracks=(), born=(), ended=()
+    )
+    path = tmp_path / "empty.rrd"
+    with RerunSink(calibration, RerunTarget.save(path), belt) as sink:
+        sink.log(*frames[2])
+        sink.log(empty, status)
+    assert rrd_verify(path).returncode == 0
+    boxes = rows_on(path, "world/tracks", "Boxes3D:half_sizes")
+    assert len(boxes[2]) == len(frames[2][0].tracks)
+    assert boxes[3] == []
+    trails = rows_on(path, "world/trails", "LineStrips3D:strips")
+    assert trails[3] == []
+    mask = rows_on(path, "world/camera/tracks", "SegmentationImage:buffer")[3]
+    assert not np.any(np.array(mask, np.uint8))

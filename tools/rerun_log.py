@@ -1,0 +1,309 @@
+"""What a tracked run looks like in rerun: entity paths, archetypes, track colours, the layout.
+
+World coordinates are the camera's (spec §7: x right, y down, z forward, metres), declared
+as `ViewCoordinates.RDF`, so the 3D view is upright as the camera sees it, and the pinhole at
+`world/camera` links the 2D and 3D views. Everything here runs on the sink's worker thread.
+"""
+
+from __future__ import annotations
+
+import colorsys
+from collections import deque
+from collections.abc import Iterable
+
+import numpy as np
+import numpy.typing as npt
+import rerun as rr
+import rerun.blueprint as rrb
+
+from tofcut.driver.calibration import Calibration
+from tofcut.tools.status import PipelineStatus
+from tofcut.tracker.tracks import TrackedFrame
+
+APP_ID = "tofcut"
+WORLD = "world"
+CAMERA = "world/camera"
+DEPTH = "world/camera/depth"
+AMPLITUDE = "world/camera/amplitude"
+INTENSITY = "world/camera/intensity"
+MASKS = "world/camera/tracks"
+POINTS = "world/points"
+BOXES = "world/tracks"
+TRAILS = "world/trails"
+BELT = "world/belt"
+STATUS = "status"
+TRACK_EVENTS = "events/tracks"
+DEVICE_EVENTS = "events/device"
+SEQUENCE = "sequence"
+"""Timeline of the device's frame sequence numbers."""
+DEVICE_TIME = "device_time"
+"""Timeline of the device's timestamps (time since the camera powered up)."""
+
+SERIES = {
+    "fps": "frames per second",
+    "latency_ms": "latency (ms)",
+    "dropped_frames": "frames lost",
+    "tracks": "live tracks",
+    "belt_speed_mps": "belt speed (m/s)",
+    "rerun_dropped": "frames rerun output dropped",
+}
+"""Time series under `status/`: entity name → what it shows."""
+
+TRAIL_FRAMES = 30
+"""A trail shows where a track's centroid was over this many frames."""
+BACKGROUND_STRIDE = 2
+"""Background points are thinned to every this-many-th pixel in u and in v."""
+BACKGROUND_RGB = (96, 96, 96)
+IMAGE_FULL_SCALE = {"amplitude": 8191.5, "intensity": 16383.0}
+"""Counts shown as white: amplitude is at most half, intensity at most all of a 14-bit tap."""
+BELT_ARROW_M = 0.3
+BELT_RGB = (40, 40, 40)
+EYE_POSITION = (0.5, -0.9, -0.3)
+EYE_TARGET = (0.0, 0.1, 1.25)
+"""The 3D view's default eye: above and behind the camera, off to one side (camera frame)."""
+
+
+def track_color(track_id: int) -> tuple[int, int, int]:
+    """A bright colour that depends on the id alone (golden-ratio hues), so it never changes."""
+    hue = (0.1 + track_id * 0.618033988749895) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(hue, 0.8, 1.0)
+    return (round(255 * r), round(255 * g), round(255 * b))
+
+
+def track_label(track_id: int) -> str:
+    return f"track {track_id}"
+
+
+def annotation_context(track_ids: Iterable[int]) -> rr.AnnotationContext:
+    """Class 0 is the see-through background; each track id gets its label and colour."""
+    classes: list[rr.AnnotationInfo] = [rr.AnnotationInfo(0, "background", (0, 0, 0, 0))]
+    classes += [
+        rr.AnnotationInfo(i, track_label(i), track_color(i)) for i in sorted(set(track_ids))
+    ]
+    return rr.AnnotationContext(classes)
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """Images with the masks and the 3D scene on top; health and events below."""
+    images = rrb.Vertical(
+        rrb.Spatial2DView(name="depth and tracks", origin=CAMERA, contents=[DEPTH, MASKS]),
+        rrb.Horizontal(
+            rrb.Spatial2DView(
+                name="amplitude and tracks", origin=CAMERA, contents=[AMPLITUDE, MASKS]
+            ),
+            rrb.Spatial2DView(name="intensity", origin=CAMERA, contents=[INTENSITY]),
+        ),
+        row_shares=[3, 2],
+    )
+    scene = rrb.Spatial3DView(
+        name="3D",
+        origin=WORLD,
+        # The point cloud is the driver's exact one; the depth image's back-projection would
+        # repeat it through rerun's distortion-free pinhole, and grey images would hide the
+        # masks in the camera's frustum.
+        contents=["+ world/**", f"- {DEPTH}", f"- {AMPLITUDE}", f"- {INTENSITY}"],
+        eye_controls=rrb.EyeControls3D(
+            position=EYE_POSITION, look_target=EYE_TARGET, eye_up=(0.0, -1.0, 0.0)
+        ),
+    )
+    no_legend = rrb.PlotLegend(visible=False)
+    health = rrb.Horizontal(
+        rrb.TimeSeriesView(name="frames per second", origin=f"{STATUS}/fps", plot_legend=no_legend),
+        rrb.TimeSeriesView(
+            name="latency (ms)", origin=f"{STATUS}/latency_ms", plot_legend=no_legend
+        ),
+        rrb.TimeSeriesView(
+            name="tracks and lost frames",
+            origin=STATUS,
+            contents=[f"{STATUS}/tracks", f"{STATUS}/dropped_frames", f"{STATUS}/rerun_dropped"],
+        ),
+        rrb.TimeSeriesView(
+            name="belt speed (m/s)", origin=f"{STATUS}/belt_speed_mps", plot_legend=no_legend
+        ),
+        rrb.TextLogView(name="events", origin="events"),
+        column_shares=[1, 1, 1, 1, 2],
+    )
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(images, scene, column_shares=[2, 3]), health, row_shares=[3, 1]
+        ),
+        rrb.TimePanel(timeline=SEQUENCE, state="collapsed"),
+        collapse_panels=True,
+    )
+
+
+def gray8(values: npt.NDArray[np.float64], full_scale: float) -> npt.NDArray[np.uint8]:
+    """Counts as 8-bit grey on a fixed square-root scale: comparable across frames and runs."""
+    scaled = np.sqrt(np.clip(values / full_scale, 0.0, 1.0)) * 255.0
+    return scaled.astype(np.uint8)
+
+
+def depth_mm(tracked: TrackedFrame) -> npt.NDArray[np.uint16]:
+    """z of each valid point in millimetres, 0 where invalid (rerun's "no depth").
+
+    Rerun's depth images hold z, the distance along the optical axis; the camera's range is
+    along the pixel's ray (spec §7), so z comes from the frame's points.
+    """
+    f = tracked.frame
+    z = np.where(f.valid, f.xyz[..., 2], 0.0)
+    return np.clip(np.rint(z * 1000.0), 0, 65535).astype(np.uint16)
+
+
+def cloud(tracked: TrackedFrame) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint8]]:
+    """Each track's points in its colour, then the thinned background in dim grey."""
+    f = tracked.frame
+    s = BACKGROUND_STRIDE
+    keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
+    parts = [t.points.astype(np.float32, copy=False) for t in tracked.tracks if len(t.points)]
+    colours = [
+        np.broadcast_to(np.array(track_color(t.id), np.uint8), (len(t.points), 3))
+        for t in tracked.tracks
+        if len(t.points)
+    ]
+    background = f.xyz[::s, ::s][keep].astype(np.float32)
+    parts.append(background)
+    colours.append(np.broadcast_to(np.array(BACKGROUND_RGB, np.uint8), (len(background), 3)))
+    return np.concatenate(parts), np.concatenate(colours)
+
+
+class FrameLogger:
+    """Logs tracked frames, pipeline health and events to one recording stream."""
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        calibration: Calibration,
+        belt_direction: npt.ArrayLike | None = None,
+    ) -> None:
+        self.rec = rec
+        self.calibration = calibration
+        self.belt_direction = (
+            None if belt_direction is None else np.asarray(belt_direction, np.float64)
+        )
+        self._trails: dict[int, deque[npt.NDArray[np.float64]]] = {}
+        self._context_ids: frozenset[int] | None = None
+        self._belt_logged = False
+        self._log_static()
+
+    def _log_static(self) -> None:
+        c = self.calibration
+        self.rec.log(WORLD, rr.ViewCoordinates.RDF, static=True)
+        self.rec.log(
+            CAMERA,
+            rr.Pinhole(
+                focal_length=[c.fx, c.fy],
+                principal_point=[c.cx, c.cy],
+                resolution=[c.width, c.height],
+                camera_xyz=rr.ViewCoordinates.RDF,
+                image_plane_distance=0.4,
+            ),
+            static=True,
+        )
+        for name, title in SERIES.items():
+            self.rec.log(f"{STATUS}/{name}", rr.SeriesLines(names=title), static=True)
+
+    def write_frame(self, tracked: TrackedFrame, status: PipelineStatus, sink_dropped: int) -> None:
+        """Everything about one frame, at its sequence number and device time."""
+        rec = self.rec
+        f = tracked.frame
+        rec.set_time(SEQUENCE, sequence=f.sequence)
+        rec.set_time(DEVICE_TIME, duration=f.device_time_us * 1e-6)
+        self._update_context(tracked)
+        rec.log(DEPTH, rr.DepthImage(depth_mm(tracked), meter=1000.0))
+        rec.log(AMPLITUDE, rr.Image(gray8(f.amplitude, IMAGE_FULL_SCALE["amplitude"])))
+        rec.log(INTENSITY, rr.Image(gray8(f.intensity, IMAGE_FULL_SCALE["intensity"])))
+        rec.log(MASKS, rr.SegmentationImage(tracked.labels))
+        positions, colours = cloud(tracked)
+        rec.log(POINTS, rr.Points3D(positions, colors=colours))
+        self._log_tracks(tracked)
+        if self.belt_direction is not None and not self._belt_logged:
+            self._log_belt(tracked)
+        self._log_status(status, sink_dropped)
+        for i in tracked.born:
+            rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} born", level="INFO"))
+        for i in tracked.ended:
+            rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} ended", level="INFO"))
+
+    def write_event(self, text: str, level: str) -> None:
+        """A device or pipeline event, at the time of the last frame written."""
+        self.rec.log(DEVICE_EVENTS, rr.TextLog(text, level=level))
+
+    def close(self, timeout_s: float | None, keep_serving: bool = False) -> None:
+        """Flush, then close the sinks: a file gets its footer and is complete.
+
+        `keep_serving` leaves a gRPC server up for viewers that connect after the run (it
+        stops when the recording stream is collected, at the latest at exit).
+        """
+        try:
+            if timeout_s is None:
+                self.rec.flush()
+            else:
+                self.rec.flush(timeout_sec=timeout_s)
+        finally:
+            if not keep_serving:
+                self.rec.disconnect()
+
+    def _update_context(self, tracked: TrackedFrame) -> None:
+        """Re-log the annotation context when the set of live ids changes (ids never repeat)."""
+        ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
+        ids |= frozenset(int(i) for i in np.unique(tracked.labels) if i)
+        if ids != self._context_ids:
+            self.rec.log(WORLD, annotation_context(ids))
+            self._context_ids = ids
+
+    def _log_tracks(self, tracked: TrackedFrame) -> None:
+        tracks = tracked.tracks
+        for i in tracked.ended:
+            self._trails.pop(i, None)
+        live = {t.id for t in tracks}
+        for i in list(self._trails):
+            if i not in live:
+                del self._trails[i]
+        for t in tracks:
+            self._trails.setdefault(t.id, deque(maxlen=TRAIL_FRAMES)).append(
+                np.asarray(t.centroid, np.float64)
+            )
+        ids = [t.id for t in tracks]
+        labels = [
+            track_label(t.id) if t.visible else f"{track_label(t.id)} (hidden)" for t in tracks
+        ]
+        mins = np.array([t.box_min for t in tracks], np.float64).reshape(-1, 3)
+        maxs = np.array([t.box_max for t in tracks], np.float64).reshape(-1, 3)
+        self.rec.log(BOXES, rr.Boxes3D(mins=mins, sizes=maxs - mins, class_ids=ids, labels=labels))
+        trails = [(i, np.array(self._trails[i])) for i in ids if len(self._trails[i]) > 1]
+        self.rec.log(
+            TRAILS,
+            rr.LineStrips3D([s for _, s in trails], class_ids=[i for i, _ in trails]),
+        )
+
+    def _log_belt(self, tracked: TrackedFrame) -> None:
+        """The belt's direction, drawn once from the middle of the first frame's points."""
+        assert self.belt_direction is not None
+        f = tracked.frame
+        origin = np.median(f.xyz[f.valid], axis=0) if f.valid.any() else np.zeros(3)
+        direction = self.belt_direction / np.linalg.norm(self.belt_direction)
+        self.rec.log(
+            BELT,
+            rr.Arrows3D(
+                origins=[origin],
+                vectors=[direction * BELT_ARROW_M],
+                labels=["belt"],
+                colors=[BELT_RGB],
+                radii=[0.006],
+            ),
+            static=True,
+        )
+        self._belt_logged = True
+
+    def _log_status(self, status: PipelineStatus, sink_dropped: int) -> None:
+        values = {
+            "fps": status.fps,
+            "latency_ms": status.latency_s * 1000.0,
+            "dropped_frames": status.dropped,
+            "tracks": status.tracks,
+            "belt_speed_mps": status.belt_speed_mps,
+            "rerun_dropped": sink_dropped,
+        }
+        for name, value in values.items():
+            if value is not None:
+                self.rec.log(f"{STATUS}/{name}", rr.Scalars(float(value)))

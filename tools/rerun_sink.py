@@ -1,0 +1,335 @@
+"""Rerun output off the hot path: `log()` queues a frame, a worker thread does the logging.
+
+Live viewers (spawn, connect, serve, stdout) get a short queue: when the viewer falls
+behind, rerun's own send queue pushes back on the worker, our queue fills, and the oldest
+queued frame is dropped and counted, so the camera and tracker never wait. A file gets a
+longer queue and loses nothing: if the worker ever falls that far behind, `log()` waits for
+room (counted in `stats`). Events are never dropped. `close()` drains the queue and closes
+the recording, so a file is complete; it also runs at interpreter exit (Ctrl-C included).
+"""
+
+from __future__ import annotations
+
+import argparse
+import atexit
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy.typing as npt
+import rerun as rr
+
+from tofcut.driver.calibration import Calibration
+from tofcut.driver.errors import TofcutError
+from tofcut.tools.rerun_log import APP_ID, FrameLogger, default_blueprint
+from tofcut.tools.rerun_target import RerunTarget, target_from_args
+from tofcut.tools.status import PipelineStatus
+from tofcut.tracker.tracks import TrackedFrame
+
+LIVE_QUEUE_FRAMES = 8
+"""About 0.15 s at 50 fps: a live view should lag little, so it drops early."""
+FILE_QUEUE_FRAMES = 64
+"""About 1.3 s at 50 fps of slack before a file makes `log()` wait."""
+LIVE_CLOSE_TIMEOUT_S = 5.0
+"""How long `close()` gives a live viewer to take what is queued before abandoning it."""
+
+
+class RerunOutputError(TofcutError):
+    """The rerun output failed (a file that cannot be written), or was used after close."""
+
+
+@dataclass(frozen=True)
+class SinkStats:
+    """What happened to the frames handed to a sink."""
+
+    logged: int
+    """Frames handed to `log()`."""
+    written: int
+    """Frames written to the recording."""
+    dropped: int
+    """Frames dropped because a live viewer was behind."""
+    waits: int
+    """`log()` calls that waited for room (file mode only)."""
+    waited_s: float
+    """Time those calls waited, in total."""
+    writer_cpu_s: float
+    """CPU time of the worker thread's Python side (it holds the GIL: it competes with the
+    tracker, unlike rerun's native encoder threads)."""
+
+
+@dataclass(frozen=True, eq=False)
+class _Frame:
+    tracked: TrackedFrame
+    status: PipelineStatus
+
+
+@dataclass(frozen=True)
+class _Event:
+    text: str
+    level: str
+
+
+class RerunSink:
+    """A recording of a tracked run, written by a worker thread; see the module docstring.
+
+    `lossless` overrides the target's drop policy (None: files lose nothing, viewers drop).
+    """
+
+    def __init__(
+        self,
+        calibration: Calibration,
+        target: RerunTarget,
+        belt_direction: npt.ArrayLike | None = None,
+        *,
+        name: str | None = None,
+        queue_frames: int | None = None,
+        lossless: bool | None = None,
+    ) -> None:
+        self.target = target
+        self.lossless = target.lossless if lossless is None else lossless
+        self.capacity = queue_frames or (FILE_QUEUE_FRAMES if self.lossless else LIVE_QUEUE_FRAMES)
+        if self.capacity < 1:
+            raise ValueError("the rerun queue must hold at least one frame")
+        rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
+        try:
+            target.attach(rec, default_blueprint())
+        except Exception as exc:
+            raise RerunOutputError(f"cannot start rerun output ({target.kind}): {exc}") from exc
+        if name:
+            rec.send_recording_name(name)
+        self._writer = FrameLogger(rec, calibration, belt_direction)
+        self._cond = threading.Condition()
+        self._items: deque[_Frame | _Event] = deque()
+        self._queued_frames = 0
+        self._logged = 0
+        self._written = 0
+        self._dropped = 0
+        self._waits = 0
+        self._waited_s = 0.0
+        self._writer_cpu_s = 0.0
+        self._closing = False
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="rerun-output", daemon=True)
+        self._thread.start()
+        atexit.register(self.close)
+
+    @classmethod
+    def from_args(
+        cls,
+        args: argparse.Namespace,
+        calibration: Calibration,
+        belt_direction: npt.ArrayLike | None = None,
+        *,
+        name: str | None = None,
+    ) -> RerunSink:
+        """The sink `add_rerun_options` asked for; says where the recording goes.
+
+        The message goes to stderr when the recording itself goes to stdout.
+        """
+        target = target_from_args(args)
+        out = sys.stderr if target.kind == "stdout" else sys.stdout
+        print(f"rerun: {target.describe()}", file=out, flush=True)
+        return cls(calibration, target, belt_direction, name=name)
+
+    # --- the hot path -----------------------------------------------------------------------
+
+    def log(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        """Queue one tracked frame and the pipeline's health; never waits on a live viewer."""
+        with self._cond:
+            self._check_usable()
+            if self._queued_frames >= self.capacity:
+                if self.lossless:
+                    self._wait_for_room()
+                else:
+                    self._drop_oldest_frame()
+            self._items.append(_Frame(tracked, status))
+            self._queued_frames += 1
+            self._logged += 1
+            self._cond.notify_all()
+
+    def event(self, text: str, level: str = "INFO") -> None:
+        """Queue a text line (device stall, disconnect, reconnect; rejects); never dropped."""
+        with self._cond:
+            self._check_usable()
+            self._items.append(_Event(text, level))
+            self._cond.notify_all()
+
+    @property
+    def dropped(self) -> int:
+        """Frames dropped so far because a live viewer was behind (always 0 for a file)."""
+        with self._cond:
+            return self._dropped
+
+    @property
+    def stats(self) -> SinkStats:
+        with self._cond:
+            return SinkStats(
+                self._logged,
+                self._written,
+                self._dropped,
+                self._waits,
+                self._waited_s,
+                self._writer_cpu_s,
+            )
+
+    def summary(self) -> str:
+        """One line for the end of a run: what was written where, what was dropped."""
+        s = self.stats
+        if self.target.kind == "save":
+            text = f"rerun: {s.written} of {s.logged} frames written to {self.target.path}"
+        else:
+            text = f"rerun: {s.written} of {s.logged} frames sent ({self.target.kind})"
+        if s.dropped:
+            text += f", {s.dropped} dropped to keep up"
+        if s.waits:
+            text += f"; the file writer held up the pipeline {s.waits} times ({s.waited_s:.2f} s)"
+        return text
+
+    def _check_usable(self) -> None:
+        if self._error is not None:
+            raise RerunOutputError(f"rerun output failed: {self._error}") from self._error
+        if self._closing:
+            raise RerunOutputError("rerun output is closed")
+
+    def _wait_for_room(self) -> None:
+        start = time.perf_counter()
+        self._waits += 1
+        while self._queued_frames >= self.capacity and self._error is None:
+            self._cond.wait()
+        self._waited_s += time.perf_counter() - start
+        self._check_usable()
+
+    def _drop_oldest_frame(self) -> None:
+        for i, item in enumerate(self._items):
+            if isinstance(item, _Frame):
+                del self._items[i]
+                self._queued_frames -= 1
+                self._dropped += 1
+                return
+
+    # --- the worker -------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._items and not self._closing:
+                    self._cond.wait()
+                if not self._items:
+                    return
+                item = self._items.popleft()
+                if isinstance(item, _Frame):
+                    self._queued_frames -= 1
+                dropped = self._dropped
+                self._cond.notify_all()
+            start = time.thread_time()
+            try:
+                if isinstance(item, _Frame):
+                    self._writer.write_frame(item.tracked, item.status, dropped)
+                else:
+                    self._writer.write_event(item.text, item.level)
+            except Exception as exc:
+                with self._cond:
+                    self._error = exc
+                    self._cond.notify_all()
+                return
+            with self._cond:
+                self._writer_cpu_s += time.thread_time() - start
+                self._written += isinstance(item, _Frame)
+
+    # --- the end ----------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Write what is queued and close the recording (a file gets its footer); idempotent.
+
+        A file waits for every frame. A live viewer gets `LIVE_CLOSE_TIMEOUT_S`; what it has
+        not taken by then is counted as dropped. A served recording stays served while this
+        object lives (see `rerun_target.wait_while_serving`).
+        """
+        with self._cond:
+            if self._closing:
+                return
+            self._closing = True
+            self._cond.notify_all()
+        atexit.unregister(self.close)
+        timeout = None if self.lossless else LIVE_CLOSE_TIMEOUT_S
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            with self._cond:
+                abandoned = sum(isinstance(i, _Frame) for i in self._items)
+                self._items.clear()
+                self._queued_frames = 0
+                self._dropped += abandoned
+            return
+        if self._error is None:
+            try:
+                self._writer.close(timeout, keep_serving=self.target.kind == "serve")
+            except Exception as exc:
+                if self.lossless:  # a live viewer that is slow to take the last data is no error
+                    self._error = exc
+        if self._error is not None:
+            raise RerunOutputError(f"rerun output failed: {self._error}") from self._error
+
+    def __enter__(self) -> RerunSink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@dataclass(frozen=True)
+class LoggingCost:
+    """What logging a run to a file cost, next to what tracking it cost."""
+
+    frames: int
+    cpu_s: float
+    """Process CPU time (every thread, rerun's own included) from the first `log()` until
+    the file was complete."""
+    writer_cpu_s: float
+    """Of that, the worker thread's Python side, which shares the GIL with the tracker."""
+    log_calls_s: float
+    """Wall time the caller spent inside `log()`: what the hot path pays."""
+    tracking_s: float
+    file_bytes: int
+
+    @property
+    def ratio(self) -> float:
+        """Logging CPU time over tracking time."""
+        return self.cpu_s / self.tracking_s
+
+    @property
+    def cpu_ms_per_frame(self) -> float:
+        return 1000.0 * self.cpu_s / self.frames
+
+
+def measure_logging_cost(
+    run: Sequence[tuple[TrackedFrame, PipelineStatus]],
+    calibration: Calibration,
+    tracking_s: float,
+    belt_direction: npt.ArrayLike | None = None,
+) -> LoggingCost:
+    """Log `run` to a temporary .rrd file and compare the CPU it took with `tracking_s`.
+
+    The queue holds the whole run (the frames are in memory already), so `log()` never
+    waits for room and `log_calls_s` is the hot path's own cost.
+    """
+    if not run or tracking_s <= 0:
+        raise ValueError("need at least one frame and a positive tracking time")
+    with tempfile.TemporaryDirectory(prefix="tofcut-bench-") as tmp:
+        path = Path(tmp) / "bench.rrd"
+        sink = RerunSink(calibration, RerunTarget.save(path), belt_direction, queue_frames=len(run))
+        in_log = 0.0
+        cpu0 = time.process_time()
+        for tracked, status in run:
+            t0 = time.perf_counter()
+            sink.log(tracked, status)
+            in_log += time.perf_counter() - t0
+        sink.close()
+        cpu = time.process_time() - cpu0
+        size = path.stat().st_size
+    return LoggingCost(len(run), cpu, sink.stats.writer_cpu_s, in_log, tracking_s, size)
