@@ -115,7 +115,11 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
     cap = tmp_path / "run.tofcap"
     assert main(["record", "emulator:conveyor", "-o", str(cap), "--frames", "30", "--fast"]) == 0
     tracks, masks = tmp_path / "t.jsonl", tmp_path / "m.npz"
-    code = main(["track", str(cap), "--tracks-out", str(tracks), "--masks-out", str(masks)])
+    rrd = tmp_path / "run.rrd"
+    code = main(
+        ["track", str(cap), "--tracks-out", str(tracks), "--masks-out", str(masks),
+         "--save", str(rrd)]
+    )  # fmt: skip
     assert code == 0
     lines = [json.loads(x) for x in tracks.read_text().splitlines()]
     assert [x["seq"] for x in lines] == list(range(30))
@@ -130,7 +134,10 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
         last = lines[-1]["tracks"]
         for t in last:
             assert int((z["labels"][-1] == t["id"]).sum()) == t["pixels"]
-    assert "tracked 30 frames" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "tracked 30 frames" in out
+    assert "30 of 30 frames written" in out
+    assert rrd.stat().st_size > 0
 
 
 def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():

@@ -24,13 +24,15 @@ from tofcut.tools.pipeline import (
     MasksWriter,
     Output,
     RunSummary,
-    Status,
     TracksWriter,
     offline,
     run,
 )
 from tofcut.tools.progress import Progress
+from tofcut.tools.rerun_sink import RerunSink
+from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
 from tofcut.tools.sources import SourceError, belt_of, open_source, scene_target
+from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.motion import BeltPrior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame
@@ -71,6 +73,7 @@ def add_tracking_options(p: argparse.ArgumentParser) -> None:
         "--scene-target", action="store_true",
         help="emulator or emulator capture: follow the scene's marked target from its seed",
     )  # fmt: skip
+    add_rerun_options(p)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -87,15 +90,28 @@ class StatusLine:
     def __init__(self, progress: Progress) -> None:
         self._progress = progress
 
-    def write(self, tracked: TrackedFrame, status: Status) -> None:
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
         self._progress.update(
             status.frames,
-            f"{status.fps:5.1f} fps  {status.tracks} tracks  {status.lost} lost  "
+            f"{status.fps:5.1f} fps  {status.tracks} tracks  {status.dropped} lost  "
             f"latency {status.latency_s * 1e3:.1f} ms",
         )
 
     def close(self) -> None:
         self._progress.close()
+
+
+class _RerunOutput:
+    """The rerun sink as a pipeline output."""
+
+    def __init__(self, sink: RerunSink) -> None:
+        self.sink = sink
+
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        self.sink.log(tracked, status)
+
+    def close(self) -> None:
+        self.sink.close()
 
 
 def track(args: argparse.Namespace, *, live: bool) -> int:
@@ -127,6 +143,11 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         outputs.append(TracksWriter(args.tracks_out))
     if args.masks_out:
         outputs.append(MasksWriter(args.masks_out))
+    sink = RerunSink.from_args(
+        args, device.calibration, belt.geometry.direction if belt else None,
+        name=f"tofcut {args.source}",
+    )  # fmt: skip
+    outputs.append(_RerunOutput(sink))
     limit_s = args.seconds
     if live and limit_s is None and args.frames is None:
         limit_s = getattr(args, "default_seconds", None)
@@ -179,6 +200,8 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         f"p99 {summary.percentile_ms(99):.1f} ms"
     )
     print(f"received {stats_summary(stats)}; dropped by the tracker queue: {summary.dropped}")
+    print(sink.summary())
+    wait_while_serving(args)
     for name in ("tracks_out", "masks_out"):
         path = getattr(args, name)
         if path:

@@ -22,6 +22,7 @@ from tofcut.driver.camera import Camera
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
+from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.motion import BeltPrior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame
@@ -96,24 +97,9 @@ def offline(frames: Iterable[RawFrame]) -> Iterator[tuple[RawFrame, float]]:
 class Output(Protocol):
     """Something that takes every tracked frame: a file, the viewer, a status line."""
 
-    def write(self, tracked: TrackedFrame, status: Status) -> None: ...
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None: ...
 
     def close(self) -> None: ...
-
-
-@dataclass(frozen=True)
-class Status:
-    """The pipeline's health after one frame."""
-
-    fps: float
-    """Frames tracked per second over the last second or so."""
-    latency_s: float
-    """From the frame's arrival on the host to its tracks."""
-    frames: int
-    lost: int
-    """Frames lost so far: device gaps, damaged frames, and frames the pipeline dropped."""
-    tracks: int
-    belt_speed_mps: float | None = None
 
 
 @dataclass
@@ -136,7 +122,7 @@ class TracksWriter:
     def __init__(self, path: Path) -> None:
         self._file: IO[str] = path.open("w", encoding="utf-8")
 
-    def write(self, tracked: TrackedFrame, status: Status) -> None:
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
         self._file.write(json.dumps(tracked.to_json(), separators=(",", ":")) + "\n")
         self._file.flush()
 
@@ -152,7 +138,7 @@ class MasksWriter:
         self._labels: list[np.ndarray] = []
         self._seq: list[int] = []
 
-    def write(self, tracked: TrackedFrame, status: Status) -> None:
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
         self._labels.append(tracked.labels)
         self._seq.append(tracked.sequence)
 
@@ -191,11 +177,11 @@ def run(
             summary.tracks_seen.update(t.id for t in tracked.tracks)
             st = stats()
             span = recent[-1] - recent[0]
-            status = Status(
+            status = PipelineStatus(
                 fps=(len(recent) - 1) / span if span > 0 else 0.0,
                 latency_s=done - arrived,
                 frames=summary.frames,
-                lost=st.lost + dropped(),
+                dropped=st.lost + dropped(),
                 tracks=len(tracked.tracks),
                 belt_speed_mps=float(np.linalg.norm(prior.velocity)) if prior else None,
             )
