@@ -17,6 +17,7 @@ COMMANDS = [
     "tofcut.tools.cmd_convert",
     "tofcut.tools.cmd_live",
     "tofcut.tools.cmd_scenes",
+    "tofcut.tools.cmd_ports",
 ]
 """Each module has `register(subparsers)`, which adds its parser with `func` set."""
 
