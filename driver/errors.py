@@ -54,3 +54,7 @@ class CaptureError(ProtocolError):
 
 class ConfigError(TofcutError, ValueError):
     """A configuration value the camera cannot take."""
+
+
+class LinkError(DeviceError):
+    """The conveyor controller's link (a serial port or a Modbus TCP gateway) cannot be opened."""

@@ -20,6 +20,7 @@ COMMANDS = [
     "tofcut.tools.cmd_evaluate",
     "tofcut.tools.cmd_scenes",
     "tofcut.tools.cmd_reproduce",
+    "tofcut.tools.cmd_ports",
 ]
 """Each module has `register(subparsers)`, which adds its parser with `func` set."""
 
