@@ -13,6 +13,7 @@ outlives unplugs, hub resets, stalls and hangs (see `raw_frames`).
 from __future__ import annotations
 
 import array
+import errno
 import threading
 import time
 from collections import deque
@@ -281,7 +282,7 @@ class Camera:
                         self._parser.end_transfer()
                     self._ready.extend(got)
             if not self._ready and (waited_ms >= timeout_ms or time.monotonic() >= deadline):
-                raise DeviceTimeout(f"no frame within {timeout_ms} ms")
+                raise DeviceTimeout(f"no frame within {timeout_ms} ms", errno.ETIMEDOUT)
         self._silent_ms = 0
         self._stalls_in_a_row = 0
         return self._ready.popleft()
@@ -299,8 +300,8 @@ class Camera:
         events. Without one, those raise `Disconnected`, `DeviceTimeout` (no frame within
         `timeout_ms`) or `RequestRejected`.
         """
-        if not self.streaming:
-            self.start()
+        if not self.streaming and not self._start_streaming():
+            return
         n = 0
         while count is None or n < count:
             raw = self._next_frame(timeout_ms)
@@ -308,6 +309,17 @@ class Camera:
                 return
             yield raw
             n += 1
+
+    def _start_streaming(self) -> bool:
+        """Start, or with a policy recover a camera found gone; False if stopped meanwhile."""
+        try:
+            self.start()
+        except DeviceError as exc:
+            if self.reconnect is None:
+                raise
+            self.streaming = True  # what the reopened camera is to do
+            return self._recover(self.reconnect, exc, "starting the stream failed")
+        return True
 
     def _next_frame(self, timeout_ms: int) -> RawFrame | None:
         """The next frame, recovering from what can be recovered; None when stopped."""
