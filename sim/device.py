@@ -403,8 +403,7 @@ class EmulatedCamera:
             self._timeouts_left += count
 
     def hang(self) -> None:
-        """The firmware hangs: no bulk data, no control answers, until a reset or power cycle.
-        The sensor keeps taking frames into the FIFO, which overflows."""
+        """The firmware hangs: no bulk data, no control answers, until a reset or power cycle."""
         with self._lock:
             self._hung = True
 

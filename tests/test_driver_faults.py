@@ -33,6 +33,7 @@ from tofcut.driver import (
 )
 from tofcut.driver.protocol import STATUS_FIFO_OVERFLOW
 from tofcut.sim import EmulatedBackend, EmulatedCamera, TestPattern
+from tofcut.sim.drill import FAULTS, drill, table
 
 SERIAL = 0x4000002F
 PERIOD_S = 0.02  # the reset FRAME_PERIOD: 50 fps
@@ -526,12 +527,21 @@ def test_a_real_time_unplug_and_replug_on_a_reader_thread():
     cam.close()
 
 
+def test_the_real_time_drill_measures_what_a_fault_cost():
+    result = drill("a transfer cut short", FAULTS["a transfer cut short"], before=3, after=3)
+    assert result.damaged == 1
+    assert result.lost >= 1  # more only if this machine fell 4 frames behind meanwhile
+    assert result.interruption_s >= 0.0
+    assert "| a transfer cut short | read on |" in table([result])
+
+
 # --- captures: a recorder killed at any moment -----------------------------------------------
 
 RECORDER = """
 import sys
 from tofcut.driver import Camera, CaptureWriter, capture_metadata
 from tofcut.sim import EmulatedBackend, EmulatedCamera, TestPattern
+from tofcut.sim.drill import FAULTS, drill, table
 
 backend = EmulatedBackend([EmulatedCamera(TestPattern(seed=1), realtime=False)])
 with Camera.open(backend=backend) as cam, CaptureWriter(
