@@ -22,8 +22,10 @@ from tofcut.driver.errors import (
     RequestRejected,
     TofcutError,
 )
+from tofcut.driver.events import DeviceEvent, EventKind
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.protocol import DeviceInfo, FrameHeader, Register
+from tofcut.driver.recovery import ReconnectPolicy
 from tofcut.driver.stream import FrameParser, StreamStats
 
 __all__ = [
@@ -37,16 +39,19 @@ __all__ = [
     "ConfigError",
     "DeviceBusy",
     "DeviceError",
+    "DeviceEvent",
     "DeviceInfo",
     "DeviceNotFound",
     "DeviceTimeout",
     "Disconnected",
+    "EventKind",
     "Frame",
     "FrameHeader",
     "FrameParser",
     "Optics",
     "ProtocolError",
     "RawFrame",
+    "ReconnectPolicy",
     "Register",
     "RequestRejected",
     "StreamStats",

@@ -1,13 +1,15 @@
 """Capture files (`.tofcap`, spec §8): the wire stream on disk, replayed through the parser.
 
 A capture cut short by a killed recorder stays readable up to its last whole record;
-the reader reports how many bytes it skipped at the end.
+the reader reports how many bytes it skipped at the end. Every length in the file is
+checked against the sensor size and the bytes actually left before anything is read.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import re
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -17,7 +19,7 @@ from typing import Any, BinaryIO
 
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.demod import Optics, demodulate
-from tofcut.driver.errors import CaptureError
+from tofcut.driver.errors import CaptureError, ProtocolError
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
@@ -29,6 +31,7 @@ from tofcut.driver.stream import FrameParser, StreamStats
 MAGIC = b"TOFCAP01"
 MAX_METADATA = 1 << 20
 """Metadata larger than this is damage, not metadata."""
+SERIAL_TEXT = re.compile(r"[0-9A-Fa-f]{1,8}")
 _U32 = struct.Struct("<I")
 _U64 = struct.Struct("<Q")
 
@@ -99,11 +102,27 @@ class CaptureWriter:
         self.close()
 
 
+def _left(f: BinaryIO) -> int:
+    """Bytes from the current position to the end of the file."""
+    return os.fstat(f.fileno()).st_size - f.tell()
+
+
 def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
+    if n > _left(f):  # checked first, so a damaged length cannot make us allocate
+        raise CaptureError(f"capture ends inside its {what}")
     data = f.read(n)
     if len(data) != n:
         raise CaptureError(f"capture ends inside its {what}")
     return data
+
+
+def _int_field(
+    meta: dict[str, Any], key: str, low: int, high: int, default: int | None = None
+) -> int:
+    value = meta.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        raise CaptureError(f"metadata {key!r} is missing or implausible: {value!r}")
+    return value
 
 
 class CaptureReader:
@@ -120,9 +139,13 @@ class CaptureReader:
             self._records_start = f.tell()
         meta = self.capture.metadata
         width, height = self.capture.width, self.capture.height
-        self.calibration: Calibration = parse_calibration(
-            self.capture.calibration_block, width, height
-        )
+        try:
+            self.calibration: Calibration = parse_calibration(
+                self.capture.calibration_block, width, height
+            )
+            self.optics = Optics.from_calibration(self.calibration)
+        except ProtocolError as exc:
+            raise CaptureError(f"the capture's calibration block is unusable: {exc}") from exc
         self.info = DeviceInfo(
             protocol=int(meta["protocol"]),
             firmware=int(meta["firmware"]),
@@ -132,7 +155,6 @@ class CaptureReader:
             calibration_size=len(self.capture.calibration_block),
             max_fps=int(meta.get("max_fps", 0)),
         )
-        self.optics = Optics.from_calibration(self.calibration)
 
     @staticmethod
     def _read_head(f: BinaryIO) -> CaptureInfo:
@@ -143,25 +165,22 @@ class CaptureReader:
             raise CaptureError(f"metadata length {meta_len} is implausible")
         try:
             meta = json.loads(_read_exact(f, meta_len, "metadata").decode())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        except (UnicodeDecodeError, ValueError, RecursionError) as exc:
             raise CaptureError(f"metadata is not UTF-8 JSON: {exc}") from exc
         if not isinstance(meta, dict):
             raise CaptureError("metadata is not a JSON object")
-        for key, kind in (("serial", str), ("firmware", int), ("protocol", int)):
-            if not isinstance(meta.get(key), kind):
-                raise CaptureError(f"metadata lacks {key!r} ({kind.__name__})")
-        for key in ("width", "height"):
-            value = meta.get(key)
-            if not isinstance(value, int) or not 0 < value <= MAX_SENSOR_SIDE:
-                raise CaptureError(f"metadata {key!r} is missing or implausible: {value!r}")
+        serial = meta.get("serial")
+        if not isinstance(serial, str) or not SERIAL_TEXT.fullmatch(serial):
+            raise CaptureError(f"metadata 'serial' is not 1 to 8 hex digits: {serial!r}")
+        _int_field(meta, "firmware", 0, 0xFFFF)
+        _int_field(meta, "protocol", 0, 0xFFFF)
+        _int_field(meta, "max_fps", 0, 0xFFFF, default=0)
+        width = _int_field(meta, "width", 1, MAX_SENSOR_SIDE)
+        height = _int_field(meta, "height", 1, MAX_SENSOR_SIDE)
         if not isinstance(meta.get("registers"), dict):
             raise CaptureError("metadata lacks 'registers' (object)")
-        try:
-            int(meta["serial"], 16)
-        except ValueError:
-            raise CaptureError(f"serial {meta['serial']!r} is not hexadecimal") from None
         (calib_len,) = _U32.unpack(_read_exact(f, 4, "calibration length"))
-        expected = CALIB_HEADER_SIZE + 2 * meta["width"] * meta["height"]
+        expected = CALIB_HEADER_SIZE + 2 * width * height
         if calib_len != expected:
             raise CaptureError(f"calibration length {calib_len} != {expected} for the sensor")
         calib = _read_exact(f, calib_len, "calibration block")
@@ -175,7 +194,8 @@ class CaptureReader:
         """Every good frame in order; damaged records are dropped and counted in `stats`."""
         self.stats = StreamStats()
         self.truncated_bytes = 0
-        parser = FrameParser(self.info, self.stats)
+        trigger_mode = self.capture.metadata["registers"].get("TRIGGER_MODE", 0)
+        parser = FrameParser(self.info, self.stats, periodic=trigger_mode == 0)
         frame_size = self.info.frame_size
         delivered = 0
         with open(self.path, "rb") as f:
@@ -197,7 +217,7 @@ class CaptureReader:
                     delivered += 1
                     if count is not None and delivered >= count:
                         break
-                parser.reset()
+                parser.end_transfer()  # a record is one frame: what is left of it is damage
 
     def _read_record(self, f: BinaryIO, frame_size: int) -> bytes | None:
         """One record's frame bytes, or None (with `truncated_bytes` set) at a cut-short end.
@@ -205,11 +225,11 @@ class CaptureReader:
         Every record holds one frame of the sensor's size; a size read from the record's
         own header is never trusted, so damage there cannot make us read too much.
         """
-        data = f.read(frame_size)
-        if len(data) < frame_size:
-            self.truncated_bytes = len(data)
+        left = _left(f)
+        if left < frame_size:
+            self.truncated_bytes = left
             return None
-        return data
+        return f.read(frame_size)
 
     def frames(self, count: int | None = None) -> Iterator[Frame]:
         for raw in self.raw_frames(count):

@@ -113,7 +113,11 @@ class UsbTransport:
         self._dev = device
         self.ids = describe(device)
         self._claimed = False
-        _call("configuring the camera", self._configure)
+        try:
+            _call("configuring the camera", self._configure)
+        except DeviceError:
+            self.close()  # e.g. another program holds it: let go of the handle we opened
+            raise
 
     def _configure(self) -> None:
         dev = self._dev
@@ -154,6 +158,15 @@ class UsbTransport:
             "reading frames", lambda: self._dev.read(ENDPOINT_FRAMES, buffer, timeout_ms)
         )
         return n
+
+    def clear_halt(self) -> None:
+        """Clear a stall of the frame endpoint (the bulk reads failed with EPIPE)."""
+        _call("clearing the frame endpoint's stall", lambda: self._dev.clear_halt(ENDPOINT_FRAMES))
+
+    def reset(self) -> None:
+        """USB port reset: the camera restarts its firmware; this handle is done afterwards."""
+        self._claimed = False
+        _call("resetting the camera", self._dev.reset)
 
     def close(self) -> None:
         """Release the interface and the OS handle; safe to call twice or on a vanished device."""

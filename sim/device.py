@@ -4,6 +4,13 @@ It knows nothing of pyusb; `tofcut.sim.usb_backend` puts it on an emulated bus. 
 taken on the device's own clock (real time, or a virtual clock that runs as fast as the
 host reads); frames the host does not fetch in time overflow the FIFO and are dropped,
 leaving a gap in the sequence and the drop flag on the next frame, as the spec says.
+
+Tests inject faults on command: damaged, cut short or lost packets (`damage_next`), a
+stalled endpoint (`stall_endpoint`), reads that time out (`time_out_next`), a hung
+firmware (`hang`), FIFO overflow (`overflow_fifo`), and power loss (`detach`/`attach`, which
+the bus's `unplug`/`replug` call). Losing power is a reboot, as on a real camera: the
+registers go back to their reset values, the sequence starts again at 0 and the device
+clock at 0 µs. A USB port reset (`usb_reset`) restarts the firmware the same way.
 """
 
 from __future__ import annotations
@@ -56,7 +63,11 @@ class Stall(Exception):
 
 
 class BulkTimeout(Exception):
-    """No data on the bulk pipe within the host's timeout."""
+    """No answer within the host's timeout (on the bulk pipe, or from a hung firmware)."""
+
+
+class Detached(Exception):
+    """The device is not on the bus (unplugged, or without power): the host sees ENODEV."""
 
 
 class BulkOverflow(Exception):
@@ -124,6 +135,15 @@ class EmulatedCamera:
         self._damage: deque[str] = deque()
         self.frames_sent = 0
         self.frames_dropped = 0
+        self._powered = True
+        self._attached = True
+        self._halted = False
+        self._halts_left = 0
+        self._packets_before_halt = 0
+        self._timeouts_left = 0
+        self._hung = False
+        self.boots = 1
+        """Times the firmware started: power-on, then once per power cycle or USB reset."""
 
     # --- timing ---------------------------------------------------------------------------
 
@@ -144,8 +164,15 @@ class EmulatedCamera:
 
     # --- control requests -----------------------------------------------------------------
 
+    def _check_answering(self) -> None:
+        if not (self._powered and self._attached):
+            raise Detached
+        if self._hung:
+            raise BulkTimeout  # a hung firmware answers nothing (reported at once)
+
     def control_in(self, request: int, value: int, index: int, length: int) -> bytes:
         with self._lock:
+            self._check_answering()
             if request == Request.GET_INFO and value == 0 and index == 0:
                 return pack_info(self.info)[:length]
             if request == Request.READ_REG:
@@ -159,6 +186,7 @@ class EmulatedCamera:
 
     def control_out(self, request: int, value: int, index: int, data: bytes) -> None:
         with self._lock:
+            self._check_answering()
             if data:
                 raise Stall("OUT requests of this device carry no data stage")
             if request == Request.WRITE_REG:
@@ -278,13 +306,53 @@ class EmulatedCamera:
                 self._take_frame(self.now_us())
                 self._lock.notify_all()
 
+    # --- power and the bus ---------------------------------------------------------------
+
+    def detach(self, *, power_loss: bool = True) -> None:
+        """The cable is pulled. With `power_loss` (a bus-powered camera) the firmware stops;
+        without it only the USB side goes, and the stream stops as when the host stops it."""
+        with self._lock:
+            self._attached = False
+            self._set_streaming(False)
+            if power_loss:
+                self._powered = False
+
+    def attach(self) -> None:
+        """The cable is plugged in again; a camera that lost power boots."""
+        with self._lock:
+            self._attached = True
+            if not self._powered:
+                self._boot()
+
+    def usb_reset(self) -> None:
+        """A USB port reset: the firmware restarts as after a power cycle."""
+        with self._lock:
+            self._set_streaming(False)
+            self._boot()
+
+    def _boot(self) -> None:
+        """Power-on state: reset registers, sequence 0, device clock 0, no faults pending."""
+        self._powered = True
+        self._power_on = self._monotonic()
+        self._regs = dict(RESET_VALUES)
+        self._next_seq = 0
+        self._clock_start_us = 0
+        self._clock_index = 0
+        self._drop_pending = self._overflow_latched = False
+        self._halted = False
+        self._halts_left = self._packets_before_halt = self._timeouts_left = 0
+        self._hung = False
+        self.boots += 1
+        self._lock.notify_all()
+
     # --- faults, injected by tests ---------------------------------------------------------
 
-    DAMAGE_KINDS = ("payload", "header", "truncate")
+    DAMAGE_KINDS = ("payload", "header", "truncate", "drop-packet", "corrupt-packet")
 
     def damage_next(self, kind: str = "payload", count: int = 1) -> None:
-        """Damage the next `count` frames on the wire: a flipped payload or header byte, or a
-        frame cut short (its transfer ends early, as when packets are lost)."""
+        """Damage the next `count` frames on the wire: a flipped payload or header byte, a
+        transfer cut short (it ends at half the frame), a 512-byte packet lost from the
+        middle of the frame, or a packet there garbled."""
         if kind not in self.DAMAGE_KINDS:
             raise ValueError(f"damage kind {kind!r} is not one of {self.DAMAGE_KINDS}")
         with self._lock:
@@ -296,8 +364,57 @@ class EmulatedCamera:
         kind = self._damage.popleft()
         if kind == "truncate":
             return wire[: len(wire) // 2]
+        if kind in ("drop-packet", "corrupt-packet"):
+            start = (len(wire) // MAX_PACKET // 2) * MAX_PACKET
+            packet = wire[start : start + MAX_PACKET]
+            if kind == "drop-packet":
+                return wire[:start] + wire[start + len(packet) :]
+            noise = np.random.default_rng(len(self._damage)).integers(0, 256, len(packet))
+            return wire[:start] + noise.astype(np.uint8).tobytes() + wire[start + len(packet) :]
         pos = HEADER_SIZE + len(wire) // 3 if kind == "payload" else 10
         return wire[:pos] + bytes([wire[pos] ^ 0x5A]) + wire[pos + 1 :]
+
+    def stall_endpoint(self, count: int = 1, after_packets: int = 0) -> None:
+        """Halt the frame endpoint after `after_packets` more packets: bulk reads fail with
+        EPIPE until the host clears the halt, and a frame cut in flight is lost. It halts
+        again on the first read after each clear, `count` times in all."""
+        with self._lock:
+            self._halts_left = count
+            self._packets_before_halt = after_packets
+
+    def clear_halt(self) -> None:
+        """The host's CLEAR_FEATURE(ENDPOINT_HALT) on the frame endpoint."""
+        with self._lock:
+            self._halted = False
+
+    def _halt(self) -> Stall:
+        self._halted = True
+        self._halts_left -= 1
+        self._packets_before_halt = 0
+        self._tx = b""
+        self._tx_pos = 0
+        self._zlp_pending = False
+        return Stall("the frame endpoint is halted")
+
+    def time_out_next(self, count: int = 1) -> None:
+        """The next `count` bulk reads get no data before the host's timeout; nothing is lost
+        unless the FIFO overflows meanwhile (on the real-time clock)."""
+        with self._lock:
+            self._timeouts_left += count
+
+    def hang(self) -> None:
+        """The firmware hangs: no bulk data, no control answers, until a reset or power cycle."""
+        with self._lock:
+            self._hung = True
+
+    def overflow_fifo(self, frames: int) -> None:
+        """The host fell behind by `frames` frames: they are dropped for want of FIFO room,
+        so the sequence skips them and the next frame carries the drop flag."""
+        with self._lock:
+            self._next_seq = (self._next_seq + frames) & 0xFFFFFFFF
+            self._clock_index += frames
+            self.frames_dropped += frames
+            self._drop_pending = self._overflow_latched = True
 
     # --- the bulk pipe --------------------------------------------------------------------
 
@@ -306,6 +423,19 @@ class EmulatedCamera:
         deadline = self._monotonic() + timeout_ms / 1000.0
         with self._lock:
             while True:
+                if not (self._powered and self._attached):
+                    raise Detached
+                if self._halted:
+                    raise Stall("the frame endpoint is halted")
+                if self._halts_left and self._packets_before_halt == 0:
+                    raise self._halt()
+                if self._hung or self._timeouts_left:
+                    self._timeouts_left = max(0, self._timeouts_left - 1)
+                    if self.realtime:
+                        self._lock.wait(max(0.0, deadline - self._monotonic()))
+                    if not (self._powered and self._attached):
+                        raise Detached
+                    raise BulkTimeout
                 if self._zlp_pending:
                     self._zlp_pending = False
                     return b""
@@ -331,6 +461,11 @@ class EmulatedCamera:
         if left > size and size % MAX_PACKET:
             raise BulkOverflow
         n = min(size, left)
+        if self._halts_left:
+            packets = max(1, -(-n // MAX_PACKET))
+            if packets > self._packets_before_halt:
+                raise self._halt()
+            self._packets_before_halt -= packets
         piece = self._tx[self._tx_pos : self._tx_pos + n]
         self._tx_pos += n
         if self._tx_pos == len(self._tx):

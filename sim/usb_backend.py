@@ -6,6 +6,9 @@
 Everything above pyusb — the driver — runs unchanged: descriptors are parsed by pyusb,
 string descriptors are read with GET_DESCRIPTOR, and device errors surface as pyusb's
 `USBError` with the errno libusb would give (EPIPE for a stall, ETIMEDOUT, ENODEV, EBUSY).
+
+A test drives the bus: `unplug` and `replug` a camera (it comes back at a new address,
+as after a real replug, and reboots if it lost power), or let another program `hold` it.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from tofcut.driver.protocol import (
     PRODUCT_ID,
     VENDOR_ID,
 )
-from tofcut.sim.device import BulkOverflow, BulkTimeout, EmulatedCamera, Stall
+from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
 
 _GET_DESCRIPTOR = 0x06
 _DESC_DEVICE, _DESC_CONFIG, _DESC_STRING = 1, 2, 3
@@ -63,6 +66,10 @@ class _Handle:
     slot: Slot
 
 
+class _OtherProgram:
+    """Stands for another process that claimed a camera's interface."""
+
+
 def _usb_error(code: int, text: str) -> usb.core.USBError:
     if code == errno.ETIMEDOUT:
         return usb.core.USBTimeoutError(text, None, code)
@@ -78,28 +85,72 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
         self._lock = threading.Lock()
         self._slots: list[Slot] = []
         self._next_address = 1
+        self._last_slot: dict[int, Slot] = {}
         for cam in cameras:
             self.plug(cam)
 
     # --- the bus, as a test or the CLI drives it ------------------------------------------
 
     def plug(
-        self, camera: EmulatedCamera, vendor_id: int = VENDOR_ID, product_id: int = PRODUCT_ID
+        self,
+        camera: EmulatedCamera,
+        vendor_id: int = VENDOR_ID,
+        product_id: int = PRODUCT_ID,
+        *,
+        address: int | None = None,
     ) -> Slot:
-        """Plug a camera in; it gets the next free address, as after a real replug."""
+        """Plug a camera in; it gets the next free address, as after a real replug, unless
+        `address` says which."""
         with self._lock:
-            slot = Slot(camera, self._bus, self._next_address, vendor_id, product_id)
-            self._next_address += 1
+            if any(s.camera is camera for s in self._slots):
+                raise ValueError("that camera is plugged in already")
+            if address is None:
+                address = self._next_address
+                self._next_address += 1
+            elif any(s.address == address for s in self._slots):
+                raise ValueError(f"address {address} is taken")
+            slot = Slot(camera, self._bus, address, vendor_id, product_id)
             self._slots.append(slot)
-            return slot
+            self._last_slot[id(camera)] = slot
+        camera.attach()
+        return slot
 
-    def unplug(self, camera: EmulatedCamera) -> None:
-        """Pull the cable: open handles fail with ENODEV from now on."""
+    def unplug(self, camera: EmulatedCamera, *, power_loss: bool = True) -> None:
+        """Pull the cable: open handles fail with ENODEV from now on. With `power_loss` (a
+        bus-powered camera) the camera reboots when it is plugged in again."""
         with self._lock:
             for slot in self._slots:
                 if slot.camera is camera and slot.plugged:
                     slot.plugged = False
             self._slots = [s for s in self._slots if s.plugged]
+        camera.detach(power_loss=power_loss)
+
+    def replug(self, camera: EmulatedCamera, *, address: int | None = None) -> Slot:
+        """Plug an unplugged camera in again, with the USB ids it had."""
+        last = self._last_slot[id(camera)]
+        return self.plug(camera, last.vendor_id, last.product_id, address=address)
+
+    def hold(self, camera: EmulatedCamera) -> None:
+        """Another program claims the camera's interface: our claims fail with EBUSY."""
+        slot = self._slot_of(camera)
+        with self._lock:
+            if slot.claimed_by is not None:
+                raise _usb_error(errno.EBUSY, "Resource busy")
+            slot.claimed_by = _OtherProgram()
+
+    def release(self, camera: EmulatedCamera) -> None:
+        """The other program lets go of the camera."""
+        slot = self._slot_of(camera)
+        with self._lock:
+            if isinstance(slot.claimed_by, _OtherProgram):
+                slot.claimed_by = None
+
+    def _slot_of(self, camera: EmulatedCamera) -> Slot:
+        with self._lock:
+            for slot in self._slots:
+                if slot.camera is camera:
+                    return slot
+        raise ValueError("that camera is not plugged in")
 
     @property
     def cameras(self) -> list[EmulatedCamera]:
@@ -228,9 +279,13 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
 
     def clear_halt(self, dev_handle: _Handle, ep: int) -> None:
         self._check(dev_handle.slot)
+        if ep != ENDPOINT_FRAMES:
+            raise _usb_error(errno.EPIPE, "no such endpoint")
+        dev_handle.slot.camera.clear_halt()
 
     def reset_device(self, dev_handle: _Handle) -> None:
         self._check(dev_handle.slot)
+        dev_handle.slot.camera.usb_reset()
 
     def ctrl_transfer(
         self,
@@ -260,6 +315,12 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
                 raise Stall("unsupported standard request")
         except Stall as exc:
             raise _usb_error(errno.EPIPE, f"Pipe error ({exc})") from None
+        except BulkTimeout:
+            raise _usb_error(errno.ETIMEDOUT, "Operation timed out") from None
+        except Detached:
+            raise _usb_error(
+                errno.ENODEV, "No such device (it may have been disconnected)"
+            ) from None
         n = min(len(reply), len(data))
         data[:n] = type(data)(data.typecode, reply[:n])
         return n
@@ -277,6 +338,12 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
             raise _usb_error(errno.ETIMEDOUT, "Operation timed out") from None
         except BulkOverflow:
             raise _usb_error(errno.EOVERFLOW, "Overflow") from None
+        except Stall:
+            raise _usb_error(errno.EPIPE, "Pipe error (endpoint halted)") from None
+        except Detached:
+            raise _usb_error(
+                errno.ENODEV, "No such device (it may have been disconnected)"
+            ) from None
         self._check(slot)  # unplugged while we waited
         memoryview(buff).cast("B")[: len(piece)] = piece
         return len(piece)
