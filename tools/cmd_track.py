@@ -33,7 +33,7 @@ from tofcut.tools.rerun_sink import RerunSink
 from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
 from tofcut.tools.sources import SourceError, belt_of, open_source, scene_target
 from tofcut.tools.status import PipelineStatus
-from tofcut.tracker.motion import BeltPrior
+from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -136,7 +136,13 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         tracker.add_target(pixel=pixel)
     for point in args.target_point:
         tracker.add_target(point=np.array(point))
-    prior = BeltPrior(belt.geometry.direction * belt.speed_mps, BELT_SPEED_SIGMA) if belt else None
+    prior = (
+        VelocityPrior(
+            belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
+        )
+        if belt
+        else None
+    )
 
     outputs: list[Output] = []
     if args.tracks_out:

@@ -23,7 +23,7 @@ from tofcut.driver.errors import TofcutError
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
 from tofcut.tools.status import PipelineStatus
-from tofcut.tracker.motion import BeltPrior
+from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -159,7 +159,7 @@ def run(
     *,
     stats: Callable[[], StreamStats],
     dropped: Callable[[], int],
-    belt: Callable[[], BeltPrior | None] = lambda: None,
+    belt: Callable[[], VelocityPrior | None] = lambda: None,
     should_stop: Callable[[RunSummary], bool] = lambda s: False,
 ) -> RunSummary:
     """Track every frame of `source` and hand each result to every output."""
@@ -183,7 +183,9 @@ def run(
                 frames=summary.frames,
                 dropped=st.lost + dropped(),
                 tracks=len(tracked.tracks),
-                belt_speed_mps=float(np.linalg.norm(prior.velocity)) if prior else None,
+                belt_speed_mps=float(np.linalg.norm(prior.mean))
+                if prior and prior.informed
+                else None,
             )
             for out in outputs:
                 out.write(tracked, status)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from tofcut.tracker.belt_prior import VelocityPrior
+
 F64 = npt.NDArray[np.float64]
 
 
@@ -30,14 +32,6 @@ class MotionParams:
     def __post_init__(self) -> None:
         if min(self.accel_sigma, self.measure_sigma_m, self.initial_speed_sigma) <= 0:
             raise ValueError("motion noise levels must be positive")
-
-
-@dataclass(frozen=True, eq=False)
-class BeltPrior:
-    """The belt's velocity in camera coordinates, and how sure we are of it (m/s, 1 sigma)."""
-
-    velocity: F64
-    sigma: float
 
 
 class ConstantVelocity:
@@ -75,12 +69,13 @@ class ConstantVelocity:
         s = self.params.measure_sigma_m if sigma_m is None else sigma_m
         self._update(np.hstack([np.eye(3), np.zeros((3, 3))]), np.asarray(centroid), s)
 
-    def follow_belt(self, prior: BeltPrior) -> None:
+    def follow_belt(self, prior: VelocityPrior) -> None:
         """Take the belt's velocity as a measurement of the object's velocity."""
-        self._update(np.hstack([np.zeros((3, 3)), np.eye(3)]), prior.velocity, prior.sigma)
+        if prior.informed:
+            self._update(np.hstack([np.zeros((3, 3)), np.eye(3)]), prior.mean, prior.cov)
 
-    def _update(self, h: F64, z: F64, sigma: float) -> None:
-        r = np.eye(3) * sigma**2
+    def _update(self, h: F64, z: F64, sigma: float | F64) -> None:
+        r = np.eye(3) * sigma**2 if isinstance(sigma, float) else sigma
         innovation = z - h @ self.x
         s = h @ self.P @ h.T + r
         k = self.P @ h.T @ np.linalg.inv(s)

@@ -25,7 +25,8 @@ from scipy.sparse.csgraph import connected_components
 from tofcut.driver.frames import Frame
 from tofcut.tracker.background import BackgroundModel, BackgroundParams
 from tofcut.tracker.belt import BeltGeometry
-from tofcut.tracker.motion import BeltPrior, ConstantVelocity, MotionParams
+from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_potts
 from tofcut.tracker.tracks import Track, TrackedFrame
 
@@ -151,7 +152,7 @@ class Tracker:
     def tracks(self) -> int:
         return len(self._tracks)
 
-    def update(self, frame: Frame, belt: BeltPrior | None = None) -> TrackedFrame:
+    def update(self, frame: Frame, belt: VelocityPrior | None = None) -> TrackedFrame:
         """Track one frame; `belt` is the conveyor's velocity now, when known."""
         p = self.params
         h, w = frame.shape
