@@ -20,12 +20,16 @@ from tofcut.tracker.belt import BeltGeometry
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 
+BLEND_SIGMAS = 2.5
+BLEND_VARIANCE_SHARE = 0.9113
+"""Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
+
 
 @dataclass(frozen=True)
 class BackgroundParams:
     """How the empty-scene model learns and what counts as standing out of it."""
 
-    learn_frames: int = 10
+    learn_frames: int = 3
     """Frames used to start the model before anything is detected."""
     rate: float = 0.02
     """Per-frame weight of a new frame where nothing is tracked (a slow running mean)."""
@@ -62,6 +66,8 @@ class BackgroundModel:
         self.known: B = np.zeros(shape, bool)
         """Pixels whose scenery range is known (valid in enough of the learning frames)."""
         self._farther = np.zeros(shape, np.int32)
+        self._farther_min = np.full(shape, np.inf)
+        self._unknown_seen = np.zeros(shape, np.int32)
 
         self.ready = False
         """True once the learning frames are in."""
@@ -77,9 +83,11 @@ class BackgroundModel:
         count = np.sum(np.isfinite(ranges), axis=0)
         self.known = count >= max(2, ranges.shape[0] // 2)
         with np.errstate(all="ignore"):
-            far = np.nanpercentile(ranges, 90, axis=0)
-            # only the frames near the far value are scenery; their spread is the noise
-            scenery = ranges > far - 0.05
+            # the median: objects passing through and flying pixels (which can even wrap
+            # round to the far end of the range) are outvoted; objects that stood on the
+            # belt all along are taken off by `clear_belt`
+            far = np.nanmedian(ranges, axis=0)
+            scenery = np.abs(ranges - far) < 0.05
             r = np.where(scenery, ranges, np.nan)
             self.range = np.where(self.known, np.nanmedian(r, axis=0), np.nan)
             spread = np.nanstd(r, axis=0)
@@ -124,15 +132,27 @@ class BackgroundModel:
             deviation = frame.range - self.range
             farther = usable & (deviation > p.noise_factor * self.sigma)
         self._farther = np.where(farther, self._farther + 1, 0)
-        newly = usable & ~self.known
-        jump = (self._farther >= p.reveal_frames) | newly
-        blend = usable & self.known & (np.abs(deviation) <= p.noise_factor * self.sigma)
+        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
+        unknown = usable & ~self.known
+        self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
+        newly = self._unknown_seen >= p.reveal_frames
+        revealed = self._farther >= p.reveal_frames
+        # follow only what looks like the same scenery; anything farther off than
+        # BLEND_SIGMAS is an object's edge or a flying pixel and would widen the noise
+        # estimate until real objects no longer stand out of it
+        blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
         self.range[blend] += p.rate * deviation[blend]
         self.intensity[blend] += p.rate * (frame.intensity[blend] - self.intensity[blend])
         var = self.sigma[blend] ** 2
-        var += p.rate * (deviation[blend] ** 2 - var)
+        # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
+        var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
         self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
-        self.range[jump] = frame.range[jump]
+        # back to the nearest of the farther readings: flying pixels only ever read too far
+        self.range[revealed] = self._farther_min[revealed]
+        self.range[newly] = frame.range[newly]
+        jump = revealed | newly
         self.intensity[jump] = frame.intensity[jump]
         self._farther[jump] = 0
+        self._farther_min[jump] = np.inf
+        self._unknown_seen[newly] = 0
         self.known |= newly

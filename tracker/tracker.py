@@ -45,7 +45,7 @@ class TrackerParams:
 
     background: BackgroundParams = field(default_factory=BackgroundParams)
     motion: MotionParams = field(default_factory=MotionParams)
-    beta: float = 1.0
+    beta: float = 2.5
     """Weight of the 3D distance penalty (eq. 6), in the track's shape: (D−µ)ᵀΣ⁻¹(D−µ)."""
     object_cost: float = 8.0
     """Cost of any pixel belonging to an object: what the pixel's evidence must outweigh."""
@@ -59,7 +59,7 @@ class TrackerParams:
     """Potts weight λ between neighbours at the same 3D place."""
     smoothness_sigma_m: float = 0.02
     """Neighbours this far apart in 3D are tied by λ·e^(−1/2): eq. (7) in the Potts term."""
-    confirm_frames: int = 3
+    confirm_frames: int = 2
     """Frames a new region must persist before it becomes a track."""
     min_pixels: int = 30
     """Smaller regions are noise, not objects."""
@@ -70,7 +70,8 @@ class TrackerParams:
     max_hidden_s: float = 2.0
     """A hidden track is predicted this long before it ends."""
     partial_fraction: float = 0.5
-    """A mask below this share of the track's usual size is a partial view: not measured."""
+    """A mask below this share of the track's usual size is a partial view, one above its
+    inverse has taken in something else: neither is measured, the track coasts."""
     initial_radius_m: float = 0.08
     """Radius of a seeded target's shape before its first mask."""
 
@@ -117,10 +118,27 @@ class _Candidate:
     seen: int = 1
 
 
-def _shape_of(points: F64, floor_m: float) -> F64:
-    """Covariance of a point cloud, kept from collapsing in thin directions."""
+_EIGHT = np.ones((3, 3), bool)
+
+
+def _on_border(mask: B) -> bool:
+    """Whether a mask touches the edge of the image."""
+    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
+    """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
+    object reaches down to the belt, though the camera sees mostly its top: the spread
+    along the belt's normal is at least that of a solid from the belt to its top."""
     cov = np.cov(points.T) if len(points) > 3 else np.zeros((3, 3))
-    return np.asarray(cov + np.eye(3) * floor_m**2)
+    cov = cov + np.eye(3) * floor_m**2
+    if belt is not None and len(points):
+        n = belt.normal
+        top = float(np.percentile((points - belt.point) @ n, 90))
+        missing = top * top / 3.0 - float(n @ cov @ n)
+        if missing > 0:
+            cov = cov + missing * np.outer(n, n)
+    return np.asarray(cov)
 
 
 class Tracker:
@@ -301,66 +319,66 @@ class Tracker:
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
-    def _regions(
-        self, frame: Frame, labels: npt.NDArray[np.uint16]
-    ) -> tuple[npt.NDArray[np.int32], int]:
-        """Pieces of surface that stand out of the scenery or belong to a track, split where
+    def _loose(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> npt.NDArray[np.int32]:
+        """Pieces of surface that stand out of the scenery and no track took, split where
         neighbours are farther apart in 3D than `connect_m` (touching objects of different
         heights come apart; one object's pixels stay together)."""
         p = self.params
         h, w = frame.shape
         bg = self.background
         assert bg is not None
-        body = labels > 0
-        if bg.ready:
-            body |= bg.standing_out(frame)
+        body = bg.standing_out(frame) & (labels == 0)
         xyz = frame.xyz
         for dv, du in ((0, 1), (1, 0)):
             a, b = _shifted(h, w, dv, du)
             jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > p.connect_m**2
-            # the pixel on the far side of a step is the edge: drop it from the region
+            # the pixel on the far side of a step is the edge: drop it from the piece
             far_a = jump & (frame.range[a] > frame.range[b])
             far_b = jump & ~far_a
             body[a] &= ~far_a
             body[b] &= ~far_b
-        regions, count = ndimage.label(body)
-        return regions, int(count)
+        pieces, _ = ndimage.label(body)
+        return np.asarray(pieces, np.int32)
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float
     ) -> tuple[list[int], list[int]]:
-        """Update every track from its mask; returns (born, ended) ids."""
+        """Update every track from its mask, and look for new objects; (born, ended) ids."""
         p = self.params
-        regions, count = self._regions(frame, labels)
-        ids = np.array([t.id for t in self._tracks], np.int64)
-        # which tracks own pixels in each region
-        owned = (labels > 0) & (regions > 0)
-        pairs = np.unique(np.stack([regions[owned], labels[owned].astype(np.int32)]), axis=1)
-        owners: dict[int, list[int]] = {}
-        for r, tid in pairs.T:
-            owners.setdefault(int(r), []).append(int(tid))
         ended: list[int] = []
         keep: list[_Live] = []
+        pieces = self._loose(frame, labels) if self.background and self.background.ready else None
         for t in self._tracks:
             mask = labels == t.id
             n = int(mask.sum())
             if n >= p.min_pixels:
-                # the measurement: the mask, grown over the regions only this track owns
-                mine = [r for r, o in owners.items() if o == [t.id]]
-                support = mask | np.isin(regions, mine) if mine else mask
-                pts = frame.xyz[support]
-                if len(pts) >= p.partial_fraction * t.usual_pixels:
+                seen = mask
+                entering = _on_border(mask)
+                if pieces is not None and entering:
+                    # an object coming into view is bigger than its mask: what stands out
+                    # right beside it is the rest of it
+                    beside = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
+                    beside = [
+                        r for r in beside[beside > 0] if self._continues(frame, mask, pieces == r)
+                    ]
+                    if beside:
+                        seen = mask | np.isin(pieces, beside)
+                        pieces[seen] = 0
+                pts = frame.xyz[seen]
+                m = len(pts)
+                usual = t.usual_pixels
+                grown = m > usual / p.partial_fraction and not entering
+                if usual == 0 or (m >= p.partial_fraction * usual and not grown):
                     t.filter.correct(pts.mean(axis=0))
-                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, 0.01)
-                    m = len(pts)
-                    t.usual_pixels = m if t.usual_pixels == 0 else 0.9 * t.usual_pixels + 0.1 * m
+                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, 0.01, self.belt)
+                    t.usual_pixels = m if usual == 0 else 0.9 * usual + 0.1 * m
+                pts = frame.xyz[mask]
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                pts = frame.xyz[mask]
                 rows, cols = np.nonzero(mask)
                 bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
                 t.last = Track(
-                    t.id, t.filter.position, t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
+                    t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
                     bbox, n, pts.astype(np.float32),
                 )  # fmt: skip
             else:
@@ -377,11 +395,7 @@ class Tracker:
                 )  # fmt: skip
             keep.append(t)
         self._tracks = keep
-        born: list[int] = []
-        if self.background is not None and self.background.ready:
-            unowned = [r for r in range(1, count + 1) if r not in owners]
-            born = self._detect(frame, regions, unowned)
-        del ids
+        born = [] if pieces is None else self._detect(frame, pieces)
         return born, ended
 
     def _in_view(self, frame: Frame, t: _Live) -> bool:
@@ -397,17 +411,35 @@ class Tracker:
         x, y = pos[0] / pos[2], pos[1] / pos[2]
         return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
 
-    def _detect(
-        self, frame: Frame, regions: npt.NDArray[np.int32], unowned: list[int]
-    ) -> list[int]:
-        """Regions no track owns become candidates; one seen `confirm_frames` times, a track."""
+    def _continues(self, frame: Frame, mask: B, piece: B) -> bool:
+        """Whether a piece beside a track coming into view is more of the same object: on a
+        belt, objects come into view along the belt, so the piece must lie within the
+        track's span across the belt."""
+        if self.belt is None:
+            return True
+        across = np.cross(self.belt.normal, self.belt.direction)
+        mine = frame.xyz[mask] @ across
+        theirs = frame.xyz[piece] @ across
+        lo, hi = np.percentile(mine, [2, 98])
+        t_lo, t_hi = np.percentile(theirs, [5, 95])
+        return bool(t_lo >= lo - self.params.connect_m and t_hi <= hi + self.params.connect_m)
+
+    def _detect(self, frame: Frame, pieces: npt.NDArray[np.int32]) -> list[int]:
+        """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
+        row (within `gate_m`), a track. A piece whose centre a track could claim is a
+        fringe of that track, not a new object."""
         p = self.params
-        sizes = np.bincount(regions.ravel())
+        sizes = np.bincount(pieces.ravel())
+        claim = (p.background_cap - p.object_cost) / p.beta
         found = []
-        for r in unowned:
-            if sizes[r] >= p.min_pixels:
-                pts = frame.xyz[regions == r]
-                found.append((pts.mean(axis=0), pts))
+        for r in np.nonzero(sizes >= p.min_pixels)[0]:
+            if r == 0:
+                continue
+            pts = frame.xyz[pieces == r]
+            centroid = pts.mean(axis=0)
+            if self._tracks and self._distances(centroid[None, :]).min() < claim:
+                continue
+            found.append((centroid, pts))
         born = []
         next_candidates = []
         for centroid, pts in found:
@@ -423,7 +455,7 @@ class Tracker:
             match.seen += 1
             match.centroid, match.points = centroid, pts
             if match.seen >= p.confirm_frames:
-                born.append(self._start(centroid, _shape_of(pts, 0.01), None))
+                born.append(self._start(centroid, _shape_of(pts, 0.01, self.belt), None))
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
