@@ -89,6 +89,36 @@ def test_conveyor_boxes_are_found_and_keep_their_ids():
             assert counts.max() > 0.5 * obj.pixels
 
 
+def _score_run(name, frames):
+    from tofcut.driver.calibration import pixel_rays
+    from tofcut.tools.cmd_evaluate import score
+    from tofcut.tracker.belt_prior import VelocityPrior
+
+    src = open_scene(name, 0)
+    b = src.belt
+    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    period = src.settings.frame_period * 1e-4
+    tracks, masks, truths = {}, {}, []
+    for i in range(frames):
+        frame, truth = decode(src, scene_exposure(src, i * period, i))
+        out = tracker.update(frame, prior)
+        tracks[i] = [t.to_json() for t in out.tracks if t.visible]
+        masks[i] = out.labels
+        truths.append(truth)
+    return score(truths, tracks, masks, pixel_rays(src.calibration))
+
+
+@pytest.mark.parametrize(("name", "frames"), [("conveyor", 300), ("paper-fig3", 300)])
+def test_tracking_meets_the_bars_on_the_belt_scenes(name, frames):
+    # paper-fig3: the box passes under the gantry between frames 150 and 300
+    result = _score_run(name, frames)
+    assert result["mota"] >= 0.95, result
+    assert result["idf1"] >= 0.95, result
+    assert result["mean_iou"] >= 0.85, result
+    assert result["id_switches"] == 0, result
+
+
 class _SlowConsumerCamera:
     """A camera whose frames come faster than the consumer takes them."""
 

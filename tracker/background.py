@@ -9,6 +9,7 @@ out to be farther than thought (an object that stood still at the start and then
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,9 +73,11 @@ class BackgroundModel:
         self.ready = False
         """True once the learning frames are in."""
 
-    def learn(self, frame: Frame) -> bool:
-        """Feed a learning frame; True once the model is ready."""
-        self._seen.append((frame.range, frame.intensity, frame.valid))
+    def learn(self, frame: Frame, exclude: B | None = None) -> bool:
+        """Feed a learning frame, less the pixels in `exclude` (objects already followed);
+        True once the model is ready."""
+        valid = frame.valid if exclude is None else frame.valid & ~exclude
+        self._seen.append((frame.range, frame.intensity, valid))
         if len(self._seen) < self.params.learn_frames:
             return False
         ranges = np.stack([np.where(v, r, np.nan) for r, _, v in self._seen])
@@ -82,7 +85,9 @@ class BackgroundModel:
         self._seen.clear()
         count = np.sum(np.isfinite(ranges), axis=0)
         self.known = count >= max(2, ranges.shape[0] // 2)
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            # pixels seen in no learning frame are NaN here, and stay unknown
+            warnings.simplefilter("ignore", RuntimeWarning)
             # the median: objects passing through and flying pixels (which can even wrap
             # round to the far end of the range) are outvoted; objects that stood on the
             # belt all along are taken off by `clear_belt`

@@ -21,6 +21,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
 from tofcut.tracker.background import BackgroundModel, BackgroundParams
@@ -34,6 +35,11 @@ F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]
+
+SEED_WINDOW = 10
+"""Half-side of the window around a seed whose noise sets the seed's surface step."""
+USUAL_MEMORY = 0.995
+"""Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
 
 _NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
 """Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
@@ -69,11 +75,18 @@ class TrackerParams:
     """A region seen again within this distance (metres) is the same candidate."""
     max_hidden_s: float = 2.0
     """A hidden track is predicted this long before it ends."""
-    partial_fraction: float = 0.5
-    """A mask below this share of the track's usual size is a partial view, one above its
-    inverse has taken in something else: neither is measured, the track coasts."""
-    initial_radius_m: float = 0.08
-    """Radius of a seeded target's shape before its first mask."""
+    whole_fraction: float = 0.85
+    """A view within this share of the track's usual size (either way) shows the whole
+    object, and is measured; others are partial (occlusion) or tainted."""
+    seed_radius_m: float = 1.0
+    """A seeded target is the surface connected to its seed within this distance of it."""
+    surface_weight: float = 0.2
+    """Weight of the distance from the track's predicted surface, (d/s)², added to the
+    shape's: the shape bounds an object's extent, the surface tells two neighbours apart."""
+    surface_sigma_m: float = 0.015
+    """How far (1σ) an object's surface may stray from where it was predicted, per frame."""
+    cloud_points: int = 400
+    """Points kept of each track's surface for that distance (a fixed subsample)."""
 
     def __post_init__(self) -> None:
         positive = {
@@ -82,19 +95,22 @@ class TrackerParams:
             "smoothness_sigma_m": self.smoothness_sigma_m,
             "gate_m": self.gate_m,
             "max_hidden_s": self.max_hidden_s,
-            "initial_radius_m": self.initial_radius_m,
+            "seed_radius_m": self.seed_radius_m,
+            "surface_sigma_m": self.surface_sigma_m,
         }
         for name, value in positive.items():
             if not value > 0:
                 raise ValueError(f"TrackerParams.{name} must be positive, got {value}")
-        if self.smoothness < 0 or self.deadband < 0:
-            raise ValueError("smoothness and deadband must not be negative")
+        if self.cloud_points < 1:
+            raise ValueError("cloud_points must be at least 1")
+        if self.smoothness < 0 or self.deadband < 0 or self.surface_weight < 0:
+            raise ValueError("smoothness, deadband and surface_weight must not be negative")
         if self.background_cap <= self.object_cost:
             raise ValueError("background_cap must exceed object_cost, or nothing is ever found")
         if self.confirm_frames < 1 or self.min_pixels < 1:
             raise ValueError("confirm_frames and min_pixels must be at least 1")
-        if not 0.0 <= self.partial_fraction <= 1.0:
-            raise ValueError("partial_fraction must be in [0, 1]")
+        if not 0.0 < self.whole_fraction <= 1.0:
+            raise ValueError("whole_fraction must be in (0, 1]")
 
 
 @dataclass(eq=False)
@@ -105,7 +121,12 @@ class _Live:
     filter: ConstantVelocity
     shape: F64
     """3×3 covariance of the object's points: its size and orientation."""
+    cloud: F64
+    """(N, 3) a subsample of the object's surface, where it is predicted to be now."""
     usual_pixels: float = 0.0
+    """The object's size in pixels when seen whole (slowly forgetting the largest view)."""
+    measured: bool = False
+    """Whether the last frame measured the track (a whole, untainted view)."""
     hidden_s: float = 0.0
     hidden_frames: int = 0
     last: Track | None = None
@@ -124,6 +145,13 @@ _EIGHT = np.ones((3, 3), bool)
 def _on_border(mask: B) -> bool:
     """Whether a mask touches the edge of the image."""
     return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+
+
+def _subsample(points: F64, n: int) -> F64:
+    """At most n of the points, evenly spread through the array (deterministic)."""
+    if len(points) <= n:
+        return points
+    return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
 
 
 def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
@@ -182,15 +210,19 @@ class Tracker:
         self._last_time_us = frame.device_time_us
         born = self._take_seeds(frame)
         for t in self._tracks:
+            before = t.filter.position
             t.filter.predict(dt)
-            if belt is not None:
+            if belt is not None and not t.measured:
+                # unseen, an object keeps the belt's pace; seen, its own motion decides
+                # (not everything in view rides the belt)
                 t.filter.follow_belt(belt)
+            t.cloud = t.cloud + (t.filter.position - before)
         labels = self._segment(frame)
         found, ended = self._measure(frame, labels, dt)
         born += found
         if self.background.ready:
             self.background.update(frame, labels == 0)
-        elif self.background.learn(frame) and self.belt is not None:
+        elif self.background.learn(frame, labels > 0) and self.belt is not None:
             self.background.clear_belt(frame, self.belt)
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
@@ -198,26 +230,49 @@ class Tracker:
     # --- seeds ----------------------------------------------------------------------------
 
     def _take_seeds(self, frame: Frame) -> list[int]:
+        """Start the targets given by the user: each is the surface 3D-connected to its seed
+        within `seed_radius_m` of it (so it is followed whole from the first frame)."""
         born = []
         h, w = frame.shape
         for pixel, point in self._seeds:
-            if pixel is not None:
+            if pixel is None:
+                assert point is not None
+                dist = np.linalg.norm(frame.xyz - point, axis=-1)
+                dist[~frame.valid] = np.inf
+                near = np.unravel_index(int(np.argmin(dist)), dist.shape)
+                v, u = int(near[0]), int(near[1])
+            else:
                 u, v = pixel
                 if not (0 <= u < w and 0 <= v < h):
                     raise ValueError(f"seed pixel {pixel} is outside the {w}x{h} frame")
                 if not frame.valid[v, u]:
                     raise ValueError(f"seed pixel {pixel} is not valid in this frame")
-                point = frame.xyz[v, u]
-            assert point is not None
-            r = self.params.initial_radius_m
-            born.append(self._start(point, np.eye(3) * r * r, None))
+            seed = frame.xyz[v, u]
+            ball = frame.valid & (
+                np.linalg.norm(frame.xyz - seed, axis=-1) < self.params.seed_radius_m
+            )
+            pieces = self._pieces(frame, ball, self._seed_step(frame, u, v))
+            region = pieces == pieces[v, u] if pieces[v, u] else np.zeros_like(ball)
+            region[v, u] = True
+            pts = frame.xyz[region]
+            born.append(self._start(pts, _shape_of(pts, 0.01, self.belt)))
         self._seeds.clear()
         return born
 
-    def _start(self, centroid: F64, shape: F64, velocity: F64 | None) -> int:
-        track = _Live(
-            self._next_id, ConstantVelocity(centroid, self.params.motion, velocity), shape
-        )
+    def _seed_step(self, frame: Frame, u: int, v: int) -> float:
+        """The 3D step that splits surfaces around a seed: `connect_m`, or four times the
+        noise of neighbour differences there if that is more (far, noisy targets)."""
+        r = frame.range[
+            max(0, v - SEED_WINDOW) : v + SEED_WINDOW, max(0, u - SEED_WINDOW) : u + SEED_WINDOW
+        ]
+        d = np.abs(np.diff(r, axis=1)).ravel()
+        d = d[np.isfinite(d)]
+        noise = 1.4826 * float(np.median(d)) if d.size else 0.0
+        return max(self.params.connect_m, 4.0 * noise)
+
+    def _start(self, points: F64, shape: F64) -> int:
+        motion = ConstantVelocity(points.mean(axis=0), self.params.motion)
+        track = _Live(self._next_id, motion, shape, _subsample(points, self.params.cloud_points))
         self._next_id += 1
         self._tracks.append(track)
         return track.id
@@ -310,12 +365,21 @@ class Tracker:
         return labels
 
     def _distances(self, points: F64) -> F64:
-        """(tracks, N) squared Mahalanobis distance of points from each track's prediction."""
+        """(tracks, N) each point's distance cost from each track's prediction: squared
+        Mahalanobis distance in the track's shape, plus the squared distance from its
+        predicted surface in units of `surface_sigma_m` (inf beyond any track's reach)."""
+        p = self.params
+        reach = p.surface_sigma_m * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         out = np.empty((len(self._tracks), len(points)))
+        finite = np.isfinite(points).all(axis=1)
         for k, t in enumerate(self._tracks):
             d = points - t.filter.position
             out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
-        return np.nan_to_num(out, nan=np.inf)
+            if p.surface_weight > 0:
+                near = np.full(len(points), np.inf)
+                near[finite], _ = cKDTree(t.cloud).query(points[finite], distance_upper_bound=reach)
+                out[k] += p.surface_weight * (near / p.surface_sigma_m) ** 2
+        return np.where(np.isnan(out), np.inf, out)
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
@@ -323,16 +387,21 @@ class Tracker:
         """Pieces of surface that stand out of the scenery and no track took, split where
         neighbours are farther apart in 3D than `connect_m` (touching objects of different
         heights come apart; one object's pixels stay together)."""
-        p = self.params
-        h, w = frame.shape
         bg = self.background
         assert bg is not None
         body = bg.standing_out(frame) & (labels == 0)
+        return self._pieces(frame, body)
+
+    def _pieces(self, frame: Frame, body: B, step_m: float | None = None) -> npt.NDArray[np.int32]:
+        """Connected pieces of `body`, cut where neighbours are farther apart than `step_m`
+        (default `connect_m`) in 3D; the pixel on the far side of such a step is left out."""
+        step = self.params.connect_m if step_m is None else step_m
+        h, w = frame.shape
+        body = body.copy()
         xyz = frame.xyz
         for dv, du in ((0, 1), (1, 0)):
             a, b = _shifted(h, w, dv, du)
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > p.connect_m**2
-            # the pixel on the far side of a step is the edge: drop it from the piece
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > step**2
             far_a = jump & (frame.range[a] > frame.range[b])
             far_b = jump & ~far_a
             body[a] &= ~far_a
@@ -357,9 +426,9 @@ class Tracker:
                 if pieces is not None and entering:
                     # an object coming into view is bigger than its mask: what stands out
                     # right beside it is the rest of it
-                    beside = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
+                    near = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
                     beside = [
-                        r for r in beside[beside > 0] if self._continues(frame, mask, pieces == r)
+                        r for r in near[near > 0] if self._continues(frame, mask, pieces == r)
                     ]
                     if beside:
                         seen = mask | np.isin(pieces, beside)
@@ -367,11 +436,18 @@ class Tracker:
                 pts = frame.xyz[seen]
                 m = len(pts)
                 usual = t.usual_pixels
-                grown = m > usual / p.partial_fraction and not entering
-                if usual == 0 or (m >= p.partial_fraction * usual and not grown):
+                # a partial view (occlusion) or a tainted one (something else taken in) is
+                # not measured: its centroid is off, so the track coasts on its prediction,
+                # and its shape and surface stay as last seen whole, moved on with it
+                whole = p.whole_fraction * usual <= m and (
+                    entering or m * p.whole_fraction <= usual
+                )
+                t.measured = usual == 0 or whole
+                if t.measured:
                     t.filter.correct(pts.mean(axis=0))
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, 0.01, self.belt)
-                    t.usual_pixels = m if usual == 0 else 0.9 * usual + 0.1 * m
+                    t.cloud = _subsample(pts, p.cloud_points)
+                    t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
                 pts = frame.xyz[mask]
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
@@ -383,6 +459,7 @@ class Tracker:
                 )  # fmt: skip
             else:
                 labels[mask] = 0
+                t.measured = False
                 t.hidden_s += dt
                 t.hidden_frames += 1
                 if t.hidden_s > p.max_hidden_s or not self._in_view(frame, t):
@@ -426,7 +503,7 @@ class Tracker:
 
     def _detect(self, frame: Frame, pieces: npt.NDArray[np.int32]) -> list[int]:
         """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
-        row (within `gate_m`), a track. A piece whose centre a track could claim is a
+        row (within `gate_m`), a track. A piece most of which a track could claim is a
         fringe of that track, not a new object."""
         p = self.params
         sizes = np.bincount(pieces.ravel())
@@ -437,7 +514,7 @@ class Tracker:
                 continue
             pts = frame.xyz[pieces == r]
             centroid = pts.mean(axis=0)
-            if self._tracks and self._distances(centroid[None, :]).min() < claim:
+            if self._tracks and np.median(self._distances(pts).min(axis=0)) < claim:
                 continue
             found.append((centroid, pts))
         born = []
@@ -455,7 +532,7 @@ class Tracker:
             match.seen += 1
             match.centroid, match.points = centroid, pts
             if match.seen >= p.confirm_frames:
-                born.append(self._start(centroid, _shape_of(pts, 0.01, self.belt), None))
+                born.append(self._start(pts, _shape_of(pts, 0.01, self.belt)))
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
