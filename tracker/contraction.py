@@ -79,13 +79,18 @@ def cut_lower_bounds(weights: F64) -> F64:
     w8 = all_directions(weights)
     bounds = np.empty((len(AXIAL), h, w))
     for slot, k in enumerate(AXIAL):
-        bound = weights[k].copy()
-        for i, j in _common_neighbours(k):
-            ev, eu = DIRECTIONS[i]
-            to_c = w8[i, 1:-1, 1:-1]
-            c_to_q = w8[j, 1 + ev : 1 + ev + h, 1 + eu : 1 + eu + w]
-            bound += np.minimum(to_c, c_to_q)
-        bounds[slot] = bound
+        commons = _common_neighbours(k)
+        to_c = w8[[i for i, _ in commons], 1:-1, 1:-1]
+        c_to_q = np.stack(
+            [
+                w8[j, 1 + DIRECTIONS[i][0] : 1 + DIRECTIONS[i][0] + h, 1 + DIRECTIONS[i][1] :][
+                    :, :w
+                ]
+                for i, j in commons
+            ]
+        )
+        np.minimum(to_c, c_to_q, out=to_c)
+        np.add(to_c.sum(axis=0), weights[k], out=bounds[slot])
     return bounds
 
 
@@ -125,7 +130,7 @@ def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
     for k in range(len(OFFSETS)):
         sp, sq = pair_slices((h, w), k)
         a, b, c = node[sp], node[sq], weights[k][sp]
-        keep = (a != b) & (c > 0)
+        keep = a != b  # (a zero weight makes a harmless zero-capacity edge)
         a, b = a[keep], b[keep]
         keys.append(np.minimum(a, b) * count + np.maximum(a, b))
         caps.append(c[keep])
