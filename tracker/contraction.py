@@ -119,6 +119,20 @@ def merged_nodes(cost1: F64, cost0: F64, weights: F64) -> tuple[int, I64]:
     return int(count), labelled[::2, ::2].astype(np.int64) - 1
 
 
+@functools.lru_cache(maxsize=16)
+def _edge_index(h: int, w: int) -> tuple[I64, I64, I64]:
+    """Flat (p, q, weight index) of every in-frame 8-neighbour edge of an H×W grid, the
+    weight index into the flattened (4, H, W) weights."""
+    index = np.arange(h * w).reshape(h, w)
+    heads, tails, at = [], [], []
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices((h, w), k)
+        heads.append(index[sp].reshape(-1))
+        tails.append(index[sq].reshape(-1))
+        at.append(index[sp].reshape(-1) + k * h * w)
+    return np.concatenate(heads), np.concatenate(tails), np.concatenate(at)
+
+
 def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
     """A minimum of the energy by graph cut on the merged nodes: (labels (H, W), nodes)."""
     h, w = cost1.shape
@@ -126,20 +140,16 @@ def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
     flat = node.reshape(-1)
     cap1 = np.bincount(flat, cost1.reshape(-1), minlength=count)
     cap0 = np.bincount(flat, cost0.reshape(-1), minlength=count)
-    keys, caps = [], []
-    for k in range(len(OFFSETS)):
-        sp, sq = pair_slices((h, w), k)
-        a, b, c = node[sp], node[sq], weights[k][sp]
-        keep = a != b  # (a zero weight makes a harmless zero-capacity edge)
-        a, b = a[keep], b[keep]
-        keys.append(np.minimum(a, b) * count + np.maximum(a, b))
-        caps.append(c[keep])
+    heads, tails, at = _edge_index(h, w)
+    a, b = flat[heads], flat[tails]
+    between = np.flatnonzero(a != b)  # (a zero weight makes a harmless zero-capacity edge)
+    a, b = a[between], b[between]
     # parallel edges between two merged nodes become one: far fewer augmenting paths
-    pairs, where = np.unique(np.concatenate(keys), return_inverse=True)
+    pairs, where = np.unique(np.minimum(a, b) * count + np.maximum(a, b), return_inverse=True)
     graph = maxflow.Graph[float](count, pairs.size)
     ids = graph.add_nodes(count)
     if pairs.size:
-        cap = np.bincount(where, np.concatenate(caps), minlength=pairs.size)
+        cap = np.bincount(where, weights.reshape(-1)[at[between]], minlength=pairs.size)
         graph.add_edges(pairs // count, pairs % count, cap, cap)
     graph.add_grid_tedges(ids, cap1, cap0)
     graph.maxflow()
