@@ -97,6 +97,27 @@ def test_merged_cut_equals_the_reference_on_random_problems(seed):
     assert_same_minimum(problem, labels, ref.labels)
 
 
+@pytest.mark.parametrize("seed", range(10))
+def test_merged_cut_ignores_weights_of_edges_that_leave_the_grid(seed):
+    # a window cut out of a frame keeps the weights of its edges to the rest of the frame
+    rng = np.random.default_rng(4000 + seed)
+    h, w = (int(x) for x in rng.integers(2, 12, 2))
+    problem, _ = seeded_problem(rng, h, w)
+    leaking = problem.weights + (in_frame(np.ones((4, h, w))) == 0) * rng.random((4, h, w))
+    labels, _ = solve_merged(problem.cost1, problem.cost0, leaking)
+    assert_same_minimum(problem, labels, solve_reference(problem).labels)
+
+
+def test_paths_through_pixels_outside_the_grid_do_not_merge():
+    # 1×2, no edge between the two: only the weights stored for edges leaving the grid
+    # (south of the seed, south-west of its neighbour) would join them, through (1, 0)
+    cost1, cost0 = seed_costs((1, 2), (0, 0))
+    weights = np.zeros((4, 1, 2))
+    weights[1, 0, 0] = weights[3, 0, 1] = 5.0
+    labels, _ = solve_merged(cost1, cost0, weights)
+    assert labels.tolist() == [[True, False]]
+
+
 def test_a_smooth_surface_merges_into_one_node_and_a_step_keeps_it_apart():
     h, w = 20, 30
     cost1, cost0 = seed_costs((h, w), (5, 5))

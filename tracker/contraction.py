@@ -56,13 +56,16 @@ def _common_neighbours(k: int) -> tuple[tuple[int, int], ...]:
 
 def all_directions(weights: F64) -> F64:
     """(8, H+2, W+2): the weight of the edge from each pixel (padded by one) in each of
-    DIRECTIONS, zero in the padding and for edges that leave the frame."""
+    DIRECTIONS; zero in the padding, so an edge that leaves the grid (whatever `weights`
+    holds for it, e.g. in a window cut out of a frame) is on no path between two pixels."""
     _, h, w = weights.shape
     out = np.zeros((len(DIRECTIONS), h + 2, w + 2))
     out[: len(OFFSETS), 1:-1, 1:-1] = weights
     for k, (dv, du) in enumerate(OFFSETS):
         # the edge q → q − off at q = p + off is the edge p → p + off, stored at p
         out[len(OFFSETS) + k, 1 + dv : 1 + dv + h, 1 + du : 1 + du + w] = weights[k]
+    out[:, (0, -1), :] = 0.0
+    out[:, :, (0, -1)] = 0.0
     return out
 
 
@@ -134,7 +137,8 @@ def _edge_index(h: int, w: int) -> tuple[I64, I64, I64]:
 
 
 def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
-    """A minimum of the energy by graph cut on the merged nodes: (labels (H, W), nodes)."""
+    """A minimum of the energy by graph cut on the merged nodes: (labels (H, W), nodes).
+    Edges that leave the grid are ignored, whatever `weights` holds for them."""
     h, w = cost1.shape
     count, node = merged_nodes(cost1, cost0, weights)
     flat = node.reshape(-1)

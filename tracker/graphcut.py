@@ -7,7 +7,9 @@ Three solvers with the same minima:
 - `solve_reduced`, for the data-term energies: pixels whose label is forced by their unary
   cost are fixed without a graph; only the rest go into it.
 - `solve_cropped`, for the §4.2 energies: the graph of a window around the seed, grown until
-  a certificate shows that nothing outside it can change the minimum.
+  a certificate shows that nothing outside it can change the minimum; inside the window,
+  neighbours that no minimum separates are merged first (`tofcut.tracker.contraction`), so
+  the max-flow no longer pushes 1/n of flow into each pixel of a surface one at a time.
 
 Why `solve_reduced` is exact (persistency). Let δ_p = cost1[p] − cost0[p] and W_p the sum of
 the weights of p's edges. If δ_p > W_p, relabelling p from target to background changes any
@@ -28,7 +30,8 @@ every pixel but the seed, which starts inside Q) and no pixel on a side of Q tha
 rest of the frame is labelled target (so no edge leaving Q is cut), its energy equals that
 lower bound: it is a global minimum. Otherwise the sides the target touches are pushed out
 and the window is solved again, at worst up to the whole frame. Parts of the frame the
-weights disconnect from the seed are thus never put into a graph.
+weights disconnect from the seed are thus never put into a graph. E_Q has only the edges
+inside Q: merging within the window ignores the edges that leave it.
 """
 
 from __future__ import annotations
@@ -87,7 +90,8 @@ class Solution:
     labels: BOOL
     """(H, W), True = target."""
     graph_nodes: int
-    """Pixels that were nodes of the graph cut (the rest were decided without it)."""
+    """Nodes of the graph(s) cut: pixels, or groups of merged pixels (summed over the windows
+    of `solve_cropped`); pixels decided without a graph do not count."""
 
 
 def solve_reference(problem: Problem) -> Solution:
