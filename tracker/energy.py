@@ -171,9 +171,11 @@ def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: 
 
 
 def background_intensity(grey: F64, valid: BOOL, xyz: F64, mu_d: F64, margin_m: float) -> float:
-    """µb: median grey level of the valid pixels farther than `margin_m` from µd (all valid
-    pixels if none is that far)."""
-    far = valid & (((xyz - mu_d) ** 2).sum(axis=-1) > margin_m**2)
+    """µb: median grey level of the valid pixels farther than `margin_m` from µd, or from
+    every row of a (K, 3) array of µd (all valid pixels if none is that far)."""
+    points = np.atleast_2d(mu_d)
+    d2 = ((xyz[..., None, :] - points) ** 2).sum(axis=-1)
+    far = valid & (d2 > margin_m**2).all(axis=-1)
     pick = far if far.any() else valid
     return float(np.median(grey[pick]))
 
