@@ -3,7 +3,9 @@
 The cut is timed from the built energy (unary costs and weights) to the labels, the part
 the two solvers do differently; `segment` end to end (estimation and building the energy
 included, which both paths share) is timed too. Two ways, the same for both solvers, all in
-one process, medians compared:
+one process; each time is the fastest of the repeats, the one least disturbed by other
+processes on a shared machine (a median lets a busy machine slow the longer reference
+calls more often than the short fast ones, which inflates the ratio):
 
 - steady: each solver called back to back (after one warm-up call), as `timeit` does;
 - cold: a 32 MiB buffer is read before every call, so each starts with its inputs out of
@@ -38,7 +40,7 @@ F64 = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class CutTiming:
-    """Median times of one energy on one frame, reference against fast."""
+    """Times (fastest of the repeats) of one energy on one frame, reference against fast."""
 
     energy: Energy
     reference_s: float
@@ -76,8 +78,8 @@ FLUSH_BYTES = 32 << 20
 """What the cold timings read before each call: well over any L2/L3 cache of this machine."""
 
 
-def _median_time(call: Callable[[], object], repeats: int, flush: F64 | None = None) -> float:
-    """Median wall time of `call` over `repeats` calls after one warm-up call; with `flush`,
+def _best_time(call: Callable[[], object], repeats: int, flush: F64 | None = None) -> float:
+    """Fastest wall time of `call` over `repeats` calls after one warm-up call; with `flush`,
     that buffer is read before each call (not timed)."""
     call()
     times = []
@@ -87,7 +89,7 @@ def _median_time(call: Callable[[], object], repeats: int, flush: F64 | None = N
         t = time.perf_counter()
         call()
         times.append(time.perf_counter() - t)
-    return float(np.median(times))
+    return min(times)
 
 
 def time_cut(
@@ -111,14 +113,12 @@ def time_cut(
         return solve_reference(problem)
 
     flush = np.ones(FLUSH_BYTES // 8)
-    ref_s = _median_time(reference, repeats)
-    fast_s = _median_time(fast, repeats)
-    ref_cold_s = _median_time(reference, repeats, flush)
-    fast_cold_s = _median_time(fast, repeats, flush)
-    seg_ref_s = _median_time(
-        lambda: segment(frame, target, energy, params, reference=True), repeats
-    )
-    seg_fast_s = _median_time(lambda: segment(frame, target, energy, params), repeats)
+    ref_s = _best_time(reference, repeats)
+    fast_s = _best_time(fast, repeats)
+    ref_cold_s = _best_time(reference, repeats, flush)
+    fast_cold_s = _best_time(fast, repeats, flush)
+    seg_ref_s = _best_time(lambda: segment(frame, target, energy, params, reference=True), repeats)
+    seg_fast_s = _best_time(lambda: segment(frame, target, energy, params), repeats)
     quick = fast()
     return CutTiming(
         energy,
