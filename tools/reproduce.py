@@ -499,7 +499,7 @@ def subject_panel(subject: Subject, scale: int = 2) -> Image.Image:
     draw = ImageDraw.Draw(canvas)
     for i, text in enumerate(captions):
         x = i * (w + gap) * scale + 2
-        words = text.replace("β", "beta").split(": ", 1)
+        words = text.replace("β", "beta").replace("§", "sec. ").split(": ", 1)
         draw.text((x, 2), words[0][: w * scale // 6], fill="black")
         if len(words) > 1:
             draw.text((x, 15), words[1][: w * scale // 6], fill="black")

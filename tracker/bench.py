@@ -3,9 +3,9 @@
 The cut is timed from the built energy (unary costs and weights) to the labels, the part
 the two solvers do differently; `segment` end to end (estimation and building the energy
 included, which both paths share) is timed too. Two ways, the same for both solvers, all in
-one process; each time is the fastest of the repeats, the one least disturbed by other
-processes on a shared machine (a median lets a busy machine slow the longer reference
-calls more often than the short fast ones, which inflates the ratio):
+one process. Times are CPU time of this process (`time.process_time`, every thread
+counted), the fastest of the repeats: on a shared machine wall time counts whatever else
+runs, and it slows the long reference calls more often than the short fast ones.
 
 - steady: each solver called back to back (after one warm-up call), as `timeit` does;
 - cold: a 32 MiB buffer is read before every call, so each starts with its inputs out of
@@ -79,16 +79,16 @@ FLUSH_BYTES = 32 << 20
 
 
 def _best_time(call: Callable[[], object], repeats: int, flush: F64 | None = None) -> float:
-    """Fastest wall time of `call` over `repeats` calls after one warm-up call; with `flush`,
+    """Fastest CPU time of `call` over `repeats` calls after one warm-up call; with `flush`,
     that buffer is read before each call (not timed)."""
     call()
     times = []
     for _ in range(repeats):
         if flush is not None:
             flush.sum()
-        t = time.perf_counter()
+        t = time.process_time()
         call()
-        times.append(time.perf_counter() - t)
+        times.append(time.process_time() - t)
     return min(times)
 
 
