@@ -58,7 +58,8 @@ class ManySegmentation:
 
     def mask(self, k: int) -> BOOL:
         """(H, W) mask of targets[k]."""
-        return self.labels == k + 1
+        mask: BOOL = self.labels == k + 1
+        return mask
 
 
 def segment_many(
