@@ -140,8 +140,13 @@ def _edge_index(h: int, w: int) -> tuple[I64, I64, I64]:
 def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
     """A minimum of the energy by graph cut on the merged nodes: (labels (H, W), nodes).
     Edges that leave the grid are ignored, whatever `weights` holds for them."""
-    h, w = cost1.shape
     count, node = merged_nodes(cost1, cost0, weights)
+    return cut_merged(cost1, cost0, weights, count, node), count
+
+
+def cut_merged(cost1: F64, cost0: F64, weights: F64, count: int, node: I64) -> BOOL:
+    """The (H, W) labels of a minimum by graph cut on the nodes of `merged_nodes`."""
+    h, w = cost1.shape
     flat = node.reshape(-1)
     cap1 = np.bincount(flat, cost1.reshape(-1), minlength=count)
     cap0 = np.bincount(flat, cost0.reshape(-1), minlength=count)
@@ -159,4 +164,5 @@ def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
     graph.add_grid_tedges(ids, cap1, cap0)
     graph.maxflow()
     target = np.asarray(graph.get_grid_segments(ids), dtype=bool)
-    return target[node], count
+    labels: BOOL = target[node]
+    return labels

@@ -43,7 +43,7 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.contraction import solve_merged
+from tofcut.tracker.contraction import cut_merged, merged_nodes
 from tofcut.tracker.energy import OFFSETS
 
 F64 = npt.NDArray[np.float64]
@@ -199,7 +199,11 @@ def _neighbours(pixels: I64, width: int, flat_weights: F64) -> tuple[I64, F64]:
 
 
 def solve_cropped(problem: Problem, centre: tuple[int, int], half_size: int = 24) -> Solution:
-    """Cut a window around `centre` (u, v), grown until certified (module docstring)."""
+    """Cut a window around `centre` (u, v), grown until certified (module docstring).
+
+    A window is grown before its cut when the pixels merged with `centre` already reach a
+    side that borders the rest of the frame: a target holding them would touch that side,
+    and an empty one is found by the larger window as well."""
     h, w = problem.shape
     rows, cols = np.divmod(np.flatnonzero(problem.cost0 > problem.cost1), w)
     u, v = centre
@@ -210,21 +214,38 @@ def solve_cropped(problem: Problem, centre: tuple[int, int], half_size: int = 24
     nodes = 0
     while True:
         window = (slice(v0, v1), slice(u0, u1))
-        sub = Problem(
-            problem.cost1[window], problem.cost0[window], problem.weights[(slice(None), *window)]
-        )
-        inner, count = solve_merged(sub.cost1, sub.cost0, sub.weights)
-        nodes += count
-        grow_up = v0 > 0 and bool(inner[0].any())
-        grow_down = v1 < h and bool(inner[-1].any())
-        grow_left = u0 > 0 and bool(inner[:, 0].any())
-        grow_right = u1 < w and bool(inner[:, -1].any())
-        if not (grow_up or grow_down or grow_left or grow_right):
+        cost1, cost0 = problem.cost1[window], problem.cost0[window]
+        weights = problem.weights[(slice(None), *window)]
+        count, node = merged_nodes(cost1, cost0, weights)
+        inner = node == node[v - v0, u - u0]
+        if not _touched_sides(inner, (v0, v1, u0, u1), (h, w)):
+            inner = cut_merged(cost1, cost0, weights, count, node)
+            nodes += count
+        grow = _touched_sides(inner, (v0, v1, u0, u1), (h, w))
+        if not grow:
             labels = np.zeros((h, w), dtype=bool)
             labels[window] = inner
             return Solution(labels, nodes)
+        grow_up, grow_down, grow_left, grow_right = (side in grow for side in "udlr")
         dv, du = v1 - v0, u1 - u0
         v0 = max(v0 - dv, 0) if grow_up else v0
         v1 = min(v1 + dv, h) if grow_down else v1
         u0 = max(u0 - du, 0) if grow_left else u0
         u1 = min(u1 + du, w) if grow_right else u1
+
+
+def _touched_sides(inner: BOOL, bounds: tuple[int, int, int, int], shape: tuple[int, int]) -> str:
+    """The sides of the window (u)p, (d)own, (l)eft, (r)ight that `inner` reaches and that
+    border the rest of the frame."""
+    v0, v1, u0, u1 = bounds
+    h, w = shape
+    return "".join(
+        side
+        for side, reached in (
+            ("u", v0 > 0 and bool(inner[0].any())),
+            ("d", v1 < h and bool(inner[-1].any())),
+            ("l", u0 > 0 and bool(inner[:, 0].any())),
+            ("r", u1 < w and bool(inner[:, -1].any())),
+        )
+        if reached
+    )
