@@ -150,6 +150,27 @@ def test_fast_equals_reference_on_emulated_frames(energy, seed):
     assert np.array_equal(fast.mask, ref.mask)
 
 
+@pytest.mark.parametrize(
+    ("scene", "name", "energy"),
+    [
+        ("robot", "robot", Energy.RANGE_SMOOTH),
+        ("tools", "wrench", Energy.RANGE_SMOOTH),
+        ("tools", "tripod", Energy.RANGE_INTENSITY_SMOOTH),
+    ],
+)
+def test_seeded_fast_equals_reference_where_the_weights_join_whole_surfaces(scene, name, energy):
+    # the cases where the window grows to the whole frame and merging does the work
+    source = open_scene(scene, 0)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    obj = next(o for o in truth.objects if o.name == name)
+    target = Target(pixel=deepest_pixel(truth.labels == obj.id))
+    fast = segment(frame, target, energy)
+    ref = segment(frame, target, energy, reference=True)
+    assert fast.energy == pytest.approx(ref.energy, rel=1e-9)
+    assert np.array_equal(fast.mask, ref.mask)
+    assert fast.graph_nodes < frame.valid.size
+
+
 def test_range_penalty_separates_the_look_alikes_that_intensity_cannot(fig1):
     source, frame, truth = fig1
     info = source.target
@@ -174,6 +195,7 @@ def test_the_benchmark_runs_and_its_labels_agree(fig1):
         assert timing.identical
         assert timing.pixels == 176 * 144
         assert timing.ratio > 0
+        assert timing.cold_ratio > 0
         assert timing.segment_ratio > 0
 
 

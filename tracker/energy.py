@@ -126,19 +126,24 @@ def range_weights(
     sigma_s: float,
     grey: F64 | None = None,
     sigma_i: float | None = None,
+    *,
+    squared: bool = True,
 ) -> F64:
     """Eq. (7) exp(−D(p,q)/2σs²) on 8 neighbours, times eq. (8)'s exp(−(I_p − I_q)²/2σi²)
     when `grey` is given; D(p,q) is the squared 3D distance. Zero where either pixel is invalid.
 
     The paper writes D(p, q) for "the distance"; we read it squared, so that (7) is a Gaussian
-    in the distance just as (8) is in the intensity difference.
+    in the distance just as (8) is in the intensity difference (and D/σs² has no unit).
+    `squared=False` takes the other reading, D the distance itself (σs² then in metres),
+    which `tofcut reproduce` compares.
     """
     if (grey is None) != (sigma_i is None):
         raise ValueError("give both grey and sigma_i, or neither")
     weights = np.zeros((len(OFFSETS), *valid.shape))
     for k in range(len(OFFSETS)):
         sp, sq = pair_slices(valid.shape, k)
-        exponent = ((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1) / (-2.0 * sigma_s**2)
+        d2 = ((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1)
+        exponent = (d2 if squared else np.sqrt(d2)) / (-2.0 * sigma_s**2)
         if grey is not None and sigma_i is not None:
             exponent -= (grey[sp] - grey[sq]) ** 2 / (2.0 * sigma_i**2)
         both = valid[sp] & valid[sq]
@@ -166,9 +171,11 @@ def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: 
 
 
 def background_intensity(grey: F64, valid: BOOL, xyz: F64, mu_d: F64, margin_m: float) -> float:
-    """µb: median grey level of the valid pixels farther than `margin_m` from µd (all valid
-    pixels if none is that far)."""
-    far = valid & (((xyz - mu_d) ** 2).sum(axis=-1) > margin_m**2)
+    """µb: median grey level of the valid pixels farther than `margin_m` from µd, or from
+    every row of a (K, 3) array of µd (all valid pixels if none is that far)."""
+    points = np.atleast_2d(mu_d)
+    d2 = ((xyz[..., None, :] - points) ** 2).sum(axis=-1)
+    far = valid & (d2 > margin_m**2).all(axis=-1)
     pick = far if far.any() else valid
     return float(np.median(grey[pick]))
 

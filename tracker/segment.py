@@ -154,7 +154,8 @@ class Segmentation:
     kind: Energy
     model: Model
     graph_nodes: int
-    """Pixels that went into the graph cut (H·W for the reference solver)."""
+    """Nodes of the graph cut(s): pixels, or groups of merged pixels for §4.2 (H·W for the
+    reference solver)."""
 
 
 def segment(
