@@ -105,7 +105,7 @@ class StatusLine:
         self._progress.close()
 
 
-class _RerunOutput:
+class RerunOutput:
     """The rerun sink as a pipeline output."""
 
     def __init__(self, sink: RerunSink) -> None:
@@ -228,7 +228,7 @@ def _run(
         outputs.append(TracksWriter(args.tracks_out))
     if args.masks_out:
         outputs.append(MasksWriter(args.masks_out))
-    outputs.append(_RerunOutput(sink))
+    outputs.append(RerunOutput(sink))
     limit_s = args.seconds
     if live and limit_s is None and args.frames is None:
         limit_s = getattr(args, "default_seconds", None)
