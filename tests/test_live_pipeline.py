@@ -17,6 +17,7 @@ from tofcut.tools.cli import main
 from tofcut.tools.latency import LatencyHistogram
 from tofcut.tools.losses import describe_losses, format_ranges
 from tofcut.tools.pipeline import EventRelay
+from tofcut.tools.sources import open_source
 from tofcut.tracker.tracker import Tracker
 
 BELT_MPS = 0.25
@@ -155,3 +156,36 @@ def test_latency_percentiles_are_within_two_percent_in_constant_memory():
     assert LatencyHistogram().percentile(99) == 0.0
     with pytest.raises(ValueError, match="not a number"):
         hist.add(float("nan"))
+
+
+def test_live_survives_an_unplug_and_a_stall_and_says_so(tmp_path, capsys, monkeypatch):
+    """Device events reach rerun and the console; the closing lines count the losses."""
+    faults_done = threading.Event()
+
+    def open_with_faults(spec, **kw):
+        opened = open_source(spec, **kw)
+        bus, emu = opened.bus, opened.emulator
+        emu.stall_endpoint()  # the first read stalls: cleared, read on
+        emu.damage_next("truncate")  # a frame cut short: damaged, lost
+
+        def unplug_for_a_while():
+            bus.unplug(emu)
+            threading.Timer(0.3, lambda: (bus.replug(emu), faults_done.set())).start()
+
+        threading.Timer(0.5, unplug_for_a_while).start()
+        return opened
+
+    monkeypatch.setattr(cmd_track, "open_source", open_with_faults)
+    rrd = tmp_path / "run.rrd"
+    code = main(["live", "emulator:conveyor", "--fast", "--seconds", "2.5", "--save", str(rrd)])
+    assert code == 0
+    assert faults_done.is_set()
+    captured = capsys.readouterr()
+    texts = [t[0] for t in logged(rrd).get("/events/device", [])]
+    for kind in ("stall-cleared", "disconnected", "reconnected", "resumed"):
+        assert any(t.startswith(kind + ":") for t in texts), (kind, texts)
+        assert f"device: {kind}:" in captured.err
+    losses = next(x for x in captured.out.splitlines() if x.startswith("received "))
+    assert "1 damaged" in losses
+    assert "1 reconnects" in losses
+    assert "lost sequence numbers: " in captured.out

@@ -208,8 +208,11 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
 
 
 def _print_event(event: DeviceEvent) -> None:
-    """A device event on the console, over the live status line."""
-    print(f"\r{'device: ' + str(event):<120}", file=sys.stderr, flush=True)
+    """A device event on the console (over the live status line on a terminal)."""
+    text = f"device: {event}"
+    if sys.stderr.isatty():
+        text = f"\r{text:<120}"
+    print(text, file=sys.stderr, flush=True)
 
 
 def _run(

@@ -125,7 +125,7 @@ class EventRelay:
 
     def __init__(self) -> None:
         self._queue: queue.SimpleQueue[DeviceEvent | None] = queue.SimpleQueue()
-        self._handlers: list[Callable[[DeviceEvent], None]] = []
+        self._handlers: list[Callable[[DeviceEvent], object]] = []
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
         """What a handler raised, if one did (the relay then stops handing on events)."""
@@ -133,7 +133,7 @@ class EventRelay:
     def post(self, event: DeviceEvent) -> None:
         self._queue.put(event)
 
-    def start(self, handlers: list[Callable[[DeviceEvent], None]]) -> EventRelay:
+    def start(self, handlers: list[Callable[[DeviceEvent], object]]) -> EventRelay:
         """Hand events (those posted before too) to `handlers` from now on."""
         self._handlers = handlers
         self._thread = threading.Thread(target=self._run, name="tofcut-events", daemon=True)
