@@ -52,7 +52,7 @@ def describe_losses(stats: StreamStats) -> list[str]:
             f" ({counted} counted from sequence numbers, "
             f"{stats.lost_estimated} estimated from outage time)"
         )
-    line += f"; {stats.damaged} damaged (among the lost)"
+    line += f"; {stats.damaged} damaged"
     if stats.reconnects:
         line += f"; {stats.reconnects} reconnects"
     if stats.device_dropped_flags:
