@@ -134,9 +134,7 @@ def test_the_closing_lines_say_what_was_counted_and_what_estimated():
     )
     assert ranges == "lost sequence numbers: 10-12, 100-136 (estimated), 300"
     assert format_ranges([(1, 1), (3, 4), (8, 9)], limit=2) == "1 earlier ranges, then 3-4, 8-9"
-    assert describe_losses(StreamStats(frames=3)) == [
-        "received 3 frames; lost 0; 0 damaged"
-    ]
+    assert describe_losses(StreamStats(frames=3)) == ["received 3 frames; lost 0; 0 damaged"]
 
 
 def test_latency_percentiles_are_within_two_percent_in_constant_memory():
