@@ -12,7 +12,7 @@ from rerun.chunk import RrdReader
 
 from tofcut.driver.events import DeviceEvent, EventKind
 from tofcut.driver.stream import StreamStats
-from tofcut.tools import cmd_track
+from tofcut.tools import cmd_record, cmd_track
 from tofcut.tools.cli import main
 from tofcut.tools.latency import LatencyHistogram
 from tofcut.tools.losses import describe_losses, format_ranges
@@ -187,3 +187,43 @@ def test_live_survives_an_unplug_and_a_stall_and_says_so(tmp_path, capsys, monke
     assert "1 damaged" in losses
     assert "1 reconnects" in losses
     assert "lost sequence numbers: " in captured.out
+
+
+@pytest.mark.parametrize("reconnect", [False, True])
+def test_record_fails_fast_unless_asked_to_reconnect(tmp_path, capsys, monkeypatch, reconnect):
+    def open_then_unplug_at_frame_5(spec, **kw):
+        opened = open_source(spec, **kw)
+        emu, bus = opened.emulator, opened.bus
+        seen = 0
+
+        def count_and_unplug(raw):
+            nonlocal seen
+            seen += 1
+            if seen == 5:
+                bus.unplug(emu)
+                threading.Timer(0.2, lambda: bus.replug(emu)).start()
+
+        original = opened.device.raw_frames
+
+        def raw_frames(*a, **k):
+            for raw in original(*a, **k):
+                count_and_unplug(raw)
+                yield raw
+
+        opened.device.raw_frames = raw_frames
+        return opened
+
+    monkeypatch.setattr(cmd_record, "open_source", open_then_unplug_at_frame_5)
+    cap = tmp_path / "run.tofcap"
+    argv = ["record", "emulator:test-pattern", "-o", str(cap), "--frames", "12", "--fast"]
+    code = main(argv + (["--reconnect"] if reconnect else []))
+    captured = capsys.readouterr()
+    if not reconnect:
+        assert code == 1
+        assert "gone" in captured.err  # Disconnected, with the USB error
+        return
+    assert code == 0
+    assert "device: disconnected:" in captured.err
+    assert "device: reconnected:" in captured.err
+    assert "1 reconnects" in captured.out
+    assert "wrote " in captured.out
