@@ -66,7 +66,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
             "frames no injected fault accounts for and the camera did not flag as its FIFO "
             "overflowing), on a fault the stream did not recover from, or when resident memory "
             f"grew by more than --max-growth-mib (default {MAX_GROWTH_MIB:g} MiB) over the "
-            "second half of the run (the first half is warm-up)."
+            "second half of the run (the first half is warm-up). The camera runs at "
+            f"{SOAK_FPS:g} fps unless --fps says otherwise. Rerun's file output alone grows "
+            "by about 40 KB a frame (see the README): long runs need --no-rerun or a larger "
+            "bound."
         ),
     )
     p.add_argument("--minutes", type=float, default=1.0, help="how long to run (default 1)")
