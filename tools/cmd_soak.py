@@ -44,7 +44,7 @@ from tofcut.tools.sources import Opened, SourceError, SourceSpec, belt_of, open_
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
 
-MAX_GROWTH_MIB = 32.0
+MAX_GROWTH_MIB = 40.0
 """Default bound on resident memory growth over the run's second half (MiB)."""
 SOAK_FPS = 10.0
 """The soak's default frame rate: one the emulator, tracker and rerun keep up with on two
