@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from tofcut.tools.cmd_track import add_tracking_options, track
+from tofcut.tools.conveyor_options import add_conveyor_options
 from tofcut.tools.options import add_camera_options, add_source_argument
 from tofcut.tools.sources import SourceError
 
@@ -21,6 +22,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_source_argument(p, default="emulator")
     add_tracking_options(p)
     add_camera_options(p)
+    add_conveyor_options(p)
     p.set_defaults(func=run, default_seconds=DEFAULT_SECONDS)
 
 

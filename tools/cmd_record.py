@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureWriter, capture_metadata
+from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.truth import FrameTruth, save_truth, truth_path
+from tofcut.tools.losses import describe_losses
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
 from tofcut.tools.progress import Progress
 from tofcut.tools.sources import SourceError, open_source
@@ -23,6 +26,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     limit = p.add_mutually_exclusive_group()
     limit.add_argument("--frames", type=int, help="stop after this many frames")
     limit.add_argument("--seconds", type=float, help="stop after this long (default 5 s)")
+    p.add_argument(
+        "--reconnect", action="store_true",
+        help="record through unplugs, stalls and hangs (default: stop at the first, with an "
+        "error); the closing lines say what was lost",
+    )  # fmt: skip
     add_camera_options(p)
     p.set_defaults(func=run)
 
@@ -35,6 +43,11 @@ def stats_summary(stats: StreamStats) -> str:
     return text
 
 
+def _print_event(event: DeviceEvent) -> None:
+    """A device event on the console (the reader's own thread: recording waits anyway)."""
+    print(f"device: {event}", file=sys.stderr, flush=True)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.source.kind == "capture":
         raise SourceError("record reads from a camera: usb, usb:SERIAL or emulator[:SCENE]")
@@ -42,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
     seconds = args.seconds if args.seconds is not None or frames_wanted else 5.0
     opened = open_source(
         args.source, realtime=not args.fast, seed=args.seed,
-        amplitude_threshold=args.amplitude_threshold,
+        amplitude_threshold=args.amplitude_threshold, reconnect=args.reconnect,
+        on_event=_print_event if args.reconnect else None,
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)
@@ -73,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
                 progress.close()
         elapsed = time.monotonic() - start
     print(f"wrote {args.output}: {stats_summary(cam.stats)} in {elapsed:.1f} s")
+    if args.reconnect:
+        for text in describe_losses(cam.stats):
+            print(text)
     if truths:
         path = truth_path(args.output)
         save_truth(path, truths)

@@ -17,9 +17,12 @@ import numpy as np
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.demod import demodulate
-from tofcut.tools.cmd_record import stats_summary
+from tofcut.driver.events import DeviceEvent
+from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
+from tofcut.tools.losses import describe_losses, event_level
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
 from tofcut.tools.pipeline import (
+    EventRelay,
     LiveFeed,
     MasksWriter,
     Output,
@@ -31,7 +34,7 @@ from tofcut.tools.pipeline import (
 from tofcut.tools.progress import Progress
 from tofcut.tools.rerun_sink import RerunSink
 from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
-from tofcut.tools.sources import SourceError, belt_of, open_source, scene_target
+from tofcut.tools.sources import Opened, SourceError, belt_of, open_source, scene_target
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
@@ -81,6 +84,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_source_argument(p)
     add_tracking_options(p)
     add_camera_options(p)
+    add_conveyor_options(p)
     p.set_defaults(func=lambda a: track(a, live=a.source.kind != "capture"))
 
 
@@ -101,7 +105,7 @@ class StatusLine:
         self._progress.close()
 
 
-class _RerunOutput:
+class RerunOutput:
     """The rerun sink as a pipeline output."""
 
     def __init__(self, sink: RerunSink) -> None:
@@ -114,12 +118,36 @@ class _RerunOutput:
         self.sink.close()
 
 
+class ConveyorOutput:
+    """The conveyor line as the first output: every tracked frame goes to the reject rule
+    right after tracking; closing it stops the link before rerun closes, so a reject fired
+    at the end still reaches the recording."""
+
+    def __init__(self, line: ConveyorLine) -> None:
+        self.line = line
+
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        self.line.observe(tracked)
+
+    def close(self) -> None:
+        self.line.close()
+
+
 def track(args: argparse.Namespace, *, live: bool) -> int:
     """Run the tracker on the source the arguments name."""
+    events = EventRelay()
     opened = open_source(
         args.source, realtime=not args.fast, seed=args.seed,
-        amplitude_threshold=args.amplitude_threshold,
+        amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
     )  # fmt: skip
+    device = opened.device
+    try:
+        return _track(args, live, opened, events)
+    finally:
+        device.close()
+
+
+def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay) -> int:
     device = opened.device
     meta: dict[str, Any] = (
         device.capture.metadata if isinstance(device, CaptureReader) else opened.metadata
@@ -136,28 +164,77 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         tracker.add_target(pixel=pixel)
     for point in args.target_point:
         tracker.add_target(point=np.array(point))
-    prior = (
+    fixed = (
         VelocityPrior(
             belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
         )
         if belt
         else None
     )
+    if not live and (args.conveyor or args.conveyor_emulator):
+        raise SourceError("the conveyor options need a live camera, not a capture")
+    line = open_conveyor(args, opened, lambda e: sink.event(e.describe(), "INFO"))
+    try:
+        direction = belt.geometry.direction if belt else line.direction if line else None
+        sink = RerunSink.from_args(
+            args, device.calibration, direction, name=f"tofcut {args.source}"
+        )
+        events.start([lambda e: sink.event(str(e), event_level(e)), _print_event])
+        summary = _run(args, live, device, tracker, sink, events, line, fixed)
+    except KeyboardInterrupt:
+        print("stopped by Ctrl-C; the outputs hold every frame tracked", file=sys.stderr)
+        return 130
+    finally:
+        if line is not None:
+            line.close()
+    fps = summary.frames / summary.elapsed_s if summary.elapsed_s > 0 else 0.0
+    print(
+        f"tracked {summary.frames} frames in {summary.elapsed_s:.1f} s ({fps:.1f} fps): "
+        f"{summary.tracks_started} tracks; latency p50 {summary.percentile_ms(50):.1f} ms, "
+        f"p95 {summary.percentile_ms(95):.1f} ms, p99 {summary.percentile_ms(99):.1f} ms"
+    )
+    for text in describe_losses(device.stats):
+        print(text)
+    print(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
+    print(sink.summary())
+    if line is not None:
+        print(line.summary())
+    wait_while_serving(args)
+    for name in ("tracks_out", "masks_out"):
+        path = getattr(args, name)
+        if path:
+            print(f"wrote {path}")
+    return 0
 
-    outputs: list[Output] = []
+
+def _print_event(event: DeviceEvent) -> None:
+    """A device event on the console (over the live status line on a terminal)."""
+    text = f"device: {event}"
+    if sys.stderr.isatty():
+        text = f"\r{text:<120}"
+    print(text, file=sys.stderr, flush=True)
+
+
+def _run(
+    args: argparse.Namespace,
+    live: bool,
+    device: Camera | CaptureReader,
+    tracker: Tracker,
+    sink: RerunSink,
+    events: EventRelay,
+    line: ConveyorLine | None,
+    fixed: VelocityPrior | None,
+) -> RunSummary:
+    """The pipeline on a capture (progress bar) or a camera (reader thread, status line)."""
+    outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
     if args.tracks_out:
         outputs.append(TracksWriter(args.tracks_out))
     if args.masks_out:
         outputs.append(MasksWriter(args.masks_out))
-    sink = RerunSink.from_args(
-        args, device.calibration, belt.geometry.direction if belt else None,
-        name=f"tofcut {args.source}",
-    )  # fmt: skip
-    outputs.append(_RerunOutput(sink))
+    outputs.append(RerunOutput(sink))
     limit_s = args.seconds
     if live and limit_s is None and args.frames is None:
         limit_s = getattr(args, "default_seconds", None)
-
     started = time.perf_counter()
 
     def should_stop(s: RunSummary) -> bool:
@@ -165,51 +242,27 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
             return True
         return limit_s is not None and time.perf_counter() - started >= limit_s
 
-    summary: RunSummary
+    prior = line.velocity_prior if line is not None else lambda frame: fixed
+    if isinstance(device, CaptureReader):
+        total = len(device) if args.frames is None else min(args.frames, len(device))
+        outputs.append(StatusLine(Progress(total, f"tracking {args.source}")))
+        return run(
+            offline(device.raw_frames()),
+            lambda raw: demodulate(raw, device.optics, device.amplitude_threshold),
+            tracker, outputs, stats=lambda: device.stats, dropped=lambda: 0, prior=prior,
+            should_stop=should_stop, events=events,
+        )  # fmt: skip
+    asked = config_from_args(args, device.config)
+    if asked is not None:
+        device.configure(asked)
+    print(f"camera {device.serial} ({args.source}): {device.config.describe()}")
+    outputs.append(StatusLine(Progress(None, "live")))
+    feed = LiveFeed(device).start()
     try:
-        if isinstance(device, CaptureReader):
-            total = len(device) if args.frames is None else min(args.frames, len(device))
-            outputs.append(StatusLine(Progress(total, f"tracking {args.source}")))
-            summary = run(
-                offline(device.raw_frames()),
-                lambda raw: demodulate(raw, device.optics, device.amplitude_threshold),
-                tracker, outputs,
-                stats=lambda: device.stats, dropped=lambda: 0, belt=lambda: prior,
-                should_stop=should_stop,
-            )  # fmt: skip
-            stats = device.stats
-        else:
-            assert isinstance(device, Camera)
-            with device:
-                asked = config_from_args(args, device.config)
-                if asked is not None:
-                    device.configure(asked)
-                print(f"camera {device.serial} ({args.source}): {device.config.describe()}")
-                outputs.append(StatusLine(Progress(None, "live")))
-                feed = LiveFeed(device).start()
-                try:
-                    summary = run(
-                        feed, device.demodulate, tracker, outputs,
-                        stats=lambda: device.stats, dropped=lambda: feed.dropped,
-                        belt=lambda: prior, should_stop=should_stop,
-                    )  # fmt: skip
-                finally:
-                    feed.stop()
-            stats = device.stats
-    except KeyboardInterrupt:
-        print("stopped by Ctrl-C; the outputs hold every frame tracked", file=sys.stderr)
-        return 130
-    fps = summary.frames / summary.elapsed_s if summary.elapsed_s > 0 else 0.0
-    print(
-        f"tracked {summary.frames} frames in {summary.elapsed_s:.1f} s ({fps:.1f} fps): "
-        f"{len(summary.tracks_seen)} tracks; latency p50 {summary.percentile_ms(50):.1f} ms, "
-        f"p99 {summary.percentile_ms(99):.1f} ms"
-    )
-    print(f"received {stats_summary(stats)}; dropped by the tracker queue: {summary.dropped}")
-    print(sink.summary())
-    wait_while_serving(args)
-    for name in ("tracks_out", "masks_out"):
-        path = getattr(args, name)
-        if path:
-            print(f"wrote {path}")
-    return 0
+        return run(
+            feed, device.demodulate, tracker, outputs, stats=lambda: device.stats,
+            dropped=lambda: feed.dropped, prior=prior,
+            should_stop=should_stop, events=events,
+        )  # fmt: skip
+    finally:
+        feed.stop()

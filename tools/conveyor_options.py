@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import TracebackType
@@ -95,6 +96,7 @@ class ConveyorLine:
     server: PtyModbusServer | None = None
     emulated: EmulatedConveyor | None = None
     exposures: ExposureClock = field(default_factory=ExposureClock)
+    closed: bool = False
 
     def frame_time_ns(self, frame: Frame) -> int:
         """The host time of the frame's exposure: when to ask the belt where it was."""
@@ -126,6 +128,10 @@ class ConveyorLine:
         return text
 
     def close(self) -> None:
+        """Stop the link (and the emulated controller); a second call does nothing."""
+        if self.closed:
+            return
+        self.closed = True
         self.client.close()
         if self.server is not None:
             self.server.close()
@@ -142,8 +148,15 @@ class ConveyorLine:
         self.close()
 
 
-def open_conveyor(args: argparse.Namespace, opened: Opened | None = None) -> ConveyorLine | None:
+def open_conveyor(
+    args: argparse.Namespace,
+    opened: Opened | None = None,
+    on_reject: Callable[[RejectEvent], None] | None = None,
+) -> ConveyorLine | None:
     """Open what the options ask for; None when they ask for no conveyor.
+
+    `on_reject` is told of every reject as the diverter is fired (on the link's thread; it
+    must be quick); by default rejects go to rerun's global recording (`log_reject`).
 
     With `--conveyor-emulator` and an emulated scene, the controller's belt runs on the
     emulated camera's clock at the scene's speed, so its encoder counts the travel the
@@ -182,7 +195,12 @@ def open_conveyor(args: argparse.Namespace, opened: Opened | None = None) -> Con
     if opened is not None and opened.emulator is not None:  # its clock is the host's
         line.exposures = ExposureClock(offset_ns=_device_clock_offset_ns(opened.emulator))
     if args.reject:
-        line.rejects = _rejects(RejectRule.parse(args.reject), geometry, config, client)
+        try:
+            rule = RejectRule.parse(args.reject)
+            line.rejects = _rejects(rule, geometry, config, client, on_reject or log_reject)
+        except BaseException:
+            line.close()
+            raise
     return line
 
 
@@ -201,7 +219,11 @@ def _scene(opened: Opened | None) -> Scene | None:
 
 
 def _rejects(
-    rule: RejectRule, geometry: BeltGeometry | None, config: ConveyorConfig, client: ConveyorClient
+    rule: RejectRule,
+    geometry: BeltGeometry | None,
+    config: ConveyorConfig,
+    client: ConveyorClient,
+    on_reject: Callable[[RejectEvent], None],
 ) -> RejectScheduler:
     if geometry is None:
         raise ConfigError("rejects need the belt's geometry: a [belt] table in --conveyor-map")
@@ -210,7 +232,7 @@ def _rejects(
 
     def fire(event: RejectEvent) -> None:
         client.divert(event.track_id)
-        log_reject(event)
+        on_reject(event)
 
     scheduler = RejectScheduler(rule, geometry, config.diverter_m, client.reading_at, fire)
     client.add_listener(scheduler.on_reading)

@@ -8,6 +8,7 @@ Offline (a capture), frames are read as fast as they are tracked and nothing is 
 from __future__ import annotations
 
 import json
+import queue
 import threading
 import time
 from collections import deque
@@ -20,8 +21,10 @@ import numpy as np
 
 from tofcut.driver.camera import Camera
 from tofcut.driver.errors import TofcutError
+from tofcut.driver.events import DeviceEvent
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
+from tofcut.tools.latency import LatencyHistogram
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
@@ -34,10 +37,18 @@ QUEUE_FRAMES = 8
 class LiveFeed:
     """Reads a camera on its own thread into a bounded queue; iterating yields raw frames."""
 
-    def __init__(self, camera: Camera, size: int = QUEUE_FRAMES) -> None:
+    def __init__(
+        self,
+        camera: Camera,
+        size: int = QUEUE_FRAMES,
+        on_frame: Callable[[RawFrame], None] | None = None,
+    ) -> None:
+        """`on_frame` sees every frame received, on the reader thread, before it is queued
+        (the soak's accounting); it must be quick."""
         if size < 1:
             raise ValueError(f"queue size must be at least 1, got {size}")
         self._camera = camera
+        self._on_frame = on_frame
         self._queue: deque[tuple[RawFrame, float]] = deque()
         self._size = size
         self._cond = threading.Condition()
@@ -54,6 +65,8 @@ class LiveFeed:
     def _read(self) -> None:
         try:
             for raw in self._camera.raw_frames():
+                if self._on_frame is not None:
+                    self._on_frame(raw)
                 with self._cond:
                     if len(self._queue) >= self._size:
                         self._queue.popleft()
@@ -102,18 +115,62 @@ class Output(Protocol):
     def close(self) -> None: ...
 
 
+class EventRelay:
+    """Device events from the camera's reader thread to the console and rerun, off that thread.
+
+    `post` is the camera's `on_event`: it runs on the reader thread, sometimes under the
+    camera's lock, so it only puts the event on a queue. A thread of the relay's own hands
+    each event, in order, to every handler, as it happens (an outage shows while it lasts).
+    """
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue[DeviceEvent | None] = queue.SimpleQueue()
+        self._handlers: list[Callable[[DeviceEvent], object]] = []
+        self._thread: threading.Thread | None = None
+        self.error: BaseException | None = None
+        """What a handler raised, if one did (the relay then stops handing on events)."""
+
+    def post(self, event: DeviceEvent) -> None:
+        self._queue.put(event)
+
+    def start(self, handlers: list[Callable[[DeviceEvent], object]]) -> EventRelay:
+        """Hand events (those posted before too) to `handlers` from now on."""
+        self._handlers = handlers
+        self._thread = threading.Thread(target=self._run, name="tofcut-events", daemon=True)
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        while (event := self._queue.get()) is not None:
+            try:
+                for handle in self._handlers:
+                    handle(event)
+            except Exception as exc:  # raised to the pipeline by close()
+                self.error = exc
+                return
+
+    def close(self) -> None:
+        """Hand on every event posted so far, then stop; raises what a handler raised."""
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
+        if self.error is not None:
+            raise self.error
+
+
 @dataclass
 class RunSummary:
-    """What a run did, for the closing line."""
+    """What a run did, for the closing line; its size does not grow with the run."""
 
     frames: int = 0
     dropped: int = 0
-    latencies_s: list[float] = field(default_factory=list)
+    latencies: LatencyHistogram = field(default_factory=LatencyHistogram)
     elapsed_s: float = 0.0
-    tracks_seen: set[int] = field(default_factory=set)
+    tracks_started: int = 0
 
     def percentile_ms(self, q: float) -> float:
-        return float(np.percentile(self.latencies_s, q) * 1e3) if self.latencies_s else 0.0
+        return self.latencies.percentile(q) * 1e3
 
 
 class TracksWriter:
@@ -131,7 +188,11 @@ class TracksWriter:
 
 
 class MasksWriter:
-    """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`."""
+    """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`.
+
+    Every frame's labels stay in memory until `close()` writes the file (about 50 KB a
+    176×144 frame): meant for runs of bounded length, not for unattended live runs.
+    """
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -159,22 +220,28 @@ def run(
     *,
     stats: Callable[[], StreamStats],
     dropped: Callable[[], int],
-    belt: Callable[[], VelocityPrior | None] = lambda: None,
+    prior: Callable[[Frame], VelocityPrior | None] = lambda frame: None,
     should_stop: Callable[[RunSummary], bool] = lambda s: False,
+    events: EventRelay | None = None,
 ) -> RunSummary:
-    """Track every frame of `source` and hand each result to every output."""
+    """Track every frame of `source` and hand each result to every output.
+
+    `prior` gives the belt's velocity at a frame (the conveyor's, or a fixed one). At the
+    end, `events` is drained into the outputs, which are then closed in order.
+    """
     summary = RunSummary()
     start = time.perf_counter()
     recent: deque[float] = deque(maxlen=50)
     try:
         for raw, arrived in source:
-            prior = belt()
-            tracked = tracker.update(demodulate(raw), prior)
+            frame = demodulate(raw)
+            belt = prior(frame)
+            tracked = tracker.update(frame, belt)
             done = time.perf_counter()
             recent.append(done)
             summary.frames += 1
-            summary.latencies_s.append(done - arrived)
-            summary.tracks_seen.update(t.id for t in tracked.tracks)
+            summary.latencies.add(done - arrived)
+            summary.tracks_started += len(tracked.born)
             st = stats()
             span = recent[-1] - recent[0]
             status = PipelineStatus(
@@ -183,9 +250,7 @@ def run(
                 frames=summary.frames,
                 dropped=st.lost + dropped(),
                 tracks=len(tracked.tracks),
-                belt_speed_mps=float(np.linalg.norm(prior.mean))
-                if prior and prior.informed
-                else None,
+                belt_speed_mps=float(np.linalg.norm(belt.mean)) if belt and belt.informed else None,
             )
             for out in outputs:
                 out.write(tracked, status)
@@ -194,7 +259,12 @@ def run(
     finally:
         summary.elapsed_s = time.perf_counter() - start
         summary.dropped = dropped()
-        errors = []
+        errors: list[BaseException] = []
+        if events is not None:
+            try:
+                events.close()
+            except (OSError, TofcutError) as exc:
+                errors.append(exc)
         for out in outputs:
             try:
                 out.close()

@@ -6,6 +6,7 @@ The emulator is chosen here and nowhere else: it is a pyusb backend handed to th
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import numpy as np
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
+from tofcut.driver.events import DeviceEvent
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.pattern import TestPattern
@@ -75,6 +77,8 @@ class Opened:
     emulator: EmulatedCamera | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     """What the emulated scene tells the tracker (belt, marked target); kept in captures."""
+    bus: EmulatedBackend | None = None
+    """The emulated camera's bus (to unplug and replug it: the soak's faults)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,17 +132,34 @@ def scene_target(meta: dict[str, Any]) -> tuple[int, int] | None:
 
 
 def open_source(
-    spec: SourceSpec, *, realtime: bool = True, seed: int = 0, amplitude_threshold: float = 0.0
+    spec: SourceSpec,
+    *,
+    realtime: bool = True,
+    seed: int = 0,
+    amplitude_threshold: float = 0.0,
+    reconnect: bool = False,
+    on_event: Callable[[DeviceEvent], None] | None = None,
 ) -> Opened:
-    """Open a USB or emulated camera, or a capture that replays like one."""
+    """Open a USB or emulated camera, or a capture that replays like one.
+
+    `reconnect` makes a camera's stream outlive unplugs, stalls and hangs (else they raise);
+    `on_event` gets the camera's device events, on the thread that reads frames.
+    """
     if spec.kind == "capture":
         assert spec.arg is not None
         return Opened(CaptureReader(spec.arg, amplitude_threshold=amplitude_threshold))
     if spec.kind == "usb":
-        return Opened(Camera.open(spec.arg, amplitude_threshold=amplitude_threshold))
+        camera = Camera.open(
+            spec.arg, amplitude_threshold=amplitude_threshold, reconnect=reconnect,
+            on_event=on_event,
+        )  # fmt: skip
+        return Opened(camera)
     source = scene_source(spec.arg, seed)
     registers = source.settings.registers if isinstance(source, SceneSource) else None
     emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
     backend = EmulatedBackend([emulator])
-    camera = Camera.open(backend=backend, amplitude_threshold=amplitude_threshold)
-    return Opened(camera, emulator, scene_metadata(source))
+    camera = Camera.open(
+        backend=backend, amplitude_threshold=amplitude_threshold, reconnect=reconnect,
+        on_event=on_event,
+    )  # fmt: skip
+    return Opened(camera, emulator, scene_metadata(source), backend)
