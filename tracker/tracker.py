@@ -36,6 +36,8 @@ B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]
 
+MIN_PIECE = 5
+"""Pieces smaller than this are noise, not more of an object coming into view."""
 SEED_WINDOW = 10
 """Half-side of the window around a seed whose noise sets the seed's surface step."""
 USUAL_MEMORY = 0.995
@@ -330,11 +332,13 @@ class Tracker:
         if not free.any():
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
-        where = np.nonzero(free)
-        maha = self._distances(frame.xyz[where])
-        free[where] = p.object_cost + p.beta * maha.min(axis=0) - u0[where] <= total[where]
+        first = np.nonzero(free)
+        cost = p.object_cost + p.beta * self._distances(frame.xyz[first])
+        free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
             return labels
+        column = np.full((h, w), -1, np.int64)
+        column[first] = np.arange(first[0].size)
         runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
         keep = np.unique(runs[free])
         free |= ~valid & np.isin(runs, keep[keep > 0])
@@ -344,8 +348,8 @@ class Tracker:
         where = np.nonzero(free)
         unary = np.zeros((len(self._tracks) + 1, n))
         unary[0] = u0[where]
-        unary[1:] = p.object_cost + p.beta * self._distances(frame.xyz[where])
-        unary[1:, ~valid[where]] = 0.0
+        known = column[where]  # invalid pixels have no column: no data cost either way
+        unary[1:, known >= 0] = cost[:, known[known >= 0]]
         ei, ej, ew = [], [], []
         for a, b, wt in ties:
             ia, ib = index[a], index[b]
@@ -427,10 +431,8 @@ class Tracker:
                     # an object coming into view is bigger than its mask: what stands out
                     # right beside it is the rest of it
                     near = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
-                    beside = [
-                        r for r in near[near > 0] if self._continues(frame, mask, pieces == r)
-                    ]
-                    if beside:
+                    beside = self._continuing(frame, mask, pieces, near[near > 0])
+                    if beside.size:
                         seen = mask | np.isin(pieces, beside)
                         pieces[seen] = 0
                 pts = frame.xyz[seen]
@@ -488,18 +490,24 @@ class Tracker:
         x, y = pos[0] / pos[2], pos[1] / pos[2]
         return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
 
-    def _continues(self, frame: Frame, mask: B, piece: B) -> bool:
-        """Whether a piece beside a track coming into view is more of the same object: on a
-        belt, objects come into view along the belt, so the piece must lie within the
-        track's span across the belt."""
-        if self.belt is None:
-            return True
-        across = np.cross(self.belt.normal, self.belt.direction)
-        mine = frame.xyz[mask] @ across
-        theirs = frame.xyz[piece] @ across
-        lo, hi = np.percentile(mine, [2, 98])
-        t_lo, t_hi = np.percentile(theirs, [5, 95])
-        return bool(t_lo >= lo - self.params.connect_m and t_hi <= hi + self.params.connect_m)
+    def _continuing(
+        self, frame: Frame, mask: B, pieces: npt.NDArray[np.int32], near: npt.NDArray[np.int32]
+    ) -> npt.NDArray[np.int32]:
+        """Which pieces beside a track coming into view are more of the same object: on a
+        belt, objects come into view along the belt, so such a piece lies within the track's
+        span across the belt (pieces smaller than MIN_PIECE are noise)."""
+        sizes = np.bincount(pieces.ravel(), minlength=int(pieces.max()) + 1)
+        near = near[sizes[near] >= MIN_PIECE]
+        if self.belt is None or near.size == 0:
+            return near
+        across = frame.xyz @ np.cross(self.belt.normal, self.belt.direction)
+        lo, hi = np.percentile(across[mask], [2, 98])
+        slack = self.params.connect_m
+        keep = []
+        for r in near:
+            t_lo, t_hi = np.percentile(across[pieces == r], [5, 95])
+            keep.append(t_lo >= lo - slack and t_hi <= hi + slack)
+        return near[np.array(keep, bool)]
 
     def _detect(self, frame: Frame, pieces: npt.NDArray[np.int32]) -> list[int]:
         """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
