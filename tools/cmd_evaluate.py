@@ -82,14 +82,17 @@ def score(
             np.array(gt_pos).reshape(-1, 3), hyp_pos, max_d2=gate * gate
         )
         acc.update(gt_ids, [h["id"] for h in hyps], np.sqrt(dist), frameid=seq)
-        labels = masks.get(seq)
+    # mask IoU of every matched pair (read once: mot_events is rebuilt on each access)
+    by_seq = {t.sequence: t for t in truths}
+    events = acc.mot_events
+    matched = events[events.Type.isin(["MATCH", "SWITCH"])]
+    for (seq, _), ev in matched.iterrows():
+        labels = masks.get(int(seq))
         if labels is None:
             continue
-        events = acc.mot_events.loc[seq]
-        for _, ev in events[events.Type.isin(["MATCH", "SWITCH"])].iterrows():
-            a = truth.labels == int(ev.OId)
-            b = labels == int(ev.HId)
-            ious.append(float((a & b).sum() / max(1, (a | b).sum())))
+        a = by_seq[int(seq)].labels == int(ev.OId)
+        b = labels == int(ev.HId)
+        ious.append(float((a & b).sum() / max(1, (a | b).sum())))
     mh = mm.metrics.create()
     summary = mh.compute(
         acc, metrics=["mota", "idf1", "num_switches", "num_objects", "num_false_positives",
@@ -119,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
         rec = json.loads(line)
         tracks[int(rec["seq"])] = list(rec["tracks"])
     with np.load(args.masks) as z:
-        masks = {int(s): z["labels"][i] for i, s in enumerate(z["seq"])}
+        labels, seqs = z["labels"], z["seq"]  # read once: each z[...] decompresses anew
+    masks = {int(s): labels[i] for i, s in enumerate(seqs)}
     scored = [t for t in truths if t.sequence in tracks]
     if not scored:
         raise SourceError("the tracks and the ground truth share no frame")
