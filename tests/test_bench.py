@@ -64,11 +64,11 @@ def test_targets_not_run_are_reported_as_not_measured_not_as_a_verdict():
 
 
 def test_verdicts_follow_the_numbers():
-    live = {"core_share": 0.49, "dropped": 0}
+    live = {"core_needed": 0.49, "dropped": 0}
     got = {t.what: t.verdict for t in targets({"live": live})}
     assert got["live pipeline at 50 fps with rerun file output"] == "PASS"
     assert got["live pipeline: frames dropped"] == "PASS"
-    got = {t.what: t.verdict for t in targets({"live": {"core_share": 0.5, "dropped": 1}})}
+    got = {t.what: t.verdict for t in targets({"live": {"core_needed": 0.5, "dropped": 1}})}
     assert got["live pipeline at 50 fps with rerun file output"] == "MISS"
     assert got["live pipeline: frames dropped"] == "MISS"
 

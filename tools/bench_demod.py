@@ -36,7 +36,7 @@ def run(quick: bool) -> dict[str, Any]:
         raws, _ = raw_run(source, 2 if quick else FRAMES)
         optics = Optics.from_calibration(source.calibration)
         pixels = width * height
-        number = max(1, (20 if quick else 200) * 176 * 144 // pixels)
+        number = max(1, (3 if quick else 25) * 176 * 144 // pixels)
         repeats = 3 if quick else 9
 
         fast, ref = (

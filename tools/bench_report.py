@@ -73,7 +73,7 @@ def targets(results: Results) -> list[Target]:
     live = results.get("live")
     out.append(
         _target("live pipeline at 50 fps with rerun file output", "< 0.5 core",
-                _value(live, "core_share"), "{:.2f} core", lambda v: v < 0.5)
+                _value(live, "core_needed"), "{:.2f} core", lambda v: v < 0.5)
     )  # fmt: skip
     out.append(
         _target("live pipeline: frames dropped", "0",
@@ -209,15 +209,18 @@ def markdown(results: Results, meta: dict[str, Any], errors: dict[str, str]) -> 
         out += [
             "Frames were rendered before the run and replayed by the emulated camera in real "
             "time; the camera's own work (header, CRC, packets), measured apart, is taken off "
-            "the process's CPU time.",
+            "the process's CPU time. The core needed at 50 fps is the pipeline's CPU per "
+            "tracked frame times 50 (the target's measure); the core used is its CPU over the "
+            "run's wall time, which understates the need when frames were dropped.",
             "",
         ]
         out += _table(
             ["seconds", "frames tracked", "processed frames/s", "process CPU", "camera's part",
-             "pipeline share of a core", "dropped (queue + device)", "rerun frames written",
-             "latency p50 / p99"],
+             "pipeline CPU per frame", "core needed at 50 fps", "core used over the run",
+             "dropped (queue + device)", "rerun frames written", "latency p50 / p99"],
             [[f"{lv['wall_s']:.1f}", str(lv["frames"]), f"{lv['processed_fps']:.1f}",
               f"{lv['process_cpu_s']:.2f} s", f"{lv['camera_cpu_s']:.3f} s",
+              f"{lv['cpu_ms_per_frame']:.1f} ms", f"{lv['core_needed']:.2f}",
               f"{lv['core_share']:.2f}", f"{lv['dropped_by_queue']} + {lv['lost_by_device']}",
               str(lv["rerun_written"]),
               f"{lv['latency_p50_ms']:.1f} / {lv['latency_p99_ms']:.1f} ms"]],
