@@ -142,8 +142,9 @@ def markdown(results: Results, meta: dict[str, Any], errors: dict[str, str]) -> 
         f"`tofcut bench{' --quick' if m['quick'] else ''}` on {m['date']}: {m['cpu_model']}, "
         f"{m['cpus']} cores, stages pinned to core {m['pinned_cpu']}, one thread per numeric "
         f"library; Python {m['python']}, numpy {m['numpy']}. Each stage ran in its own "
-        "process; times are medians after warm-up. Absolute times drift on a shared machine; "
-        "the ratios hold better.",
+        "process; times are medians after warm-up, in CPU time of the working thread (other "
+        "processes on a shared machine do not count), except segmentation's, which are wall "
+        "time. Absolute times still drift between machines and runs; the ratios hold better.",
         "",
         "## Targets",
         "",

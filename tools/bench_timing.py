@@ -1,4 +1,10 @@
-"""Timing for `tofcut bench`: warm-up, repetitions, medians, percentiles and fitted exponents."""
+"""Timing for `tofcut bench`: warm-up, repetitions, medians, percentiles and fitted exponents.
+
+Times are the CPU time of the calling thread (`time.thread_time`), not wall time: every
+stage runs on one thread with one-thread numeric libraries, so this is what the work costs
+one core, and other processes on a shared machine (which take the core away, and make wall
+time swing by 2× and more) do not count against it.
+"""
 
 from __future__ import annotations
 
@@ -8,21 +14,24 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+CLOCK = time.thread_time
+"""The clock of every time `tofcut bench` reports, unless it says otherwise."""
+
 
 def median_seconds(
     fn: Callable[[], object], *, warmup: int, repeats: int, number: int = 1
 ) -> float:
-    """Median over `repeats` of the mean time of `number` calls, after `warmup` calls."""
+    """Median over `repeats` of the mean CPU time of `number` calls, after `warmup` calls."""
     if repeats < 1 or number < 1:
         raise ValueError("repeats and number must be at least 1")
     for _ in range(warmup):
         fn()
     times = []
     for _ in range(repeats):
-        start = time.perf_counter()
+        start = CLOCK()
         for _ in range(number):
             fn()
-        times.append((time.perf_counter() - start) / number)
+        times.append((CLOCK() - start) / number)
     return float(np.median(times))
 
 
