@@ -104,7 +104,8 @@ def fits(results: Results) -> list[Fit]:
     objects = tracker.get("objects", [])
     candidates = [
         _fit("demodulation (fast)", "pixels", [(r["pixels"], r["fast_s"]) for r in demod]),
-        _fit("demodulation (reference)", "pixels", [(r["pixels"], r["reference_s"]) for r in demod]),
+        _fit("demodulation (reference)", "pixels",
+             [(r["pixels"], r["reference_s"]) for r in demod]),
         _fit("rendering", "pixels", [(r["pixels"], r["render_s"]) for r in demod]),
         _fit("tracker", "pixels", [(r["pixels"], r["frame_s"]) for r in sizes]),
         _fit("tracker", "objects", [(r["objects"], r["frame_s"]) for r in objects]),
