@@ -7,7 +7,9 @@ import numpy as np
 
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.frames import RawFrame
-from tofcut.driver.protocol import FrameHeader, crc32
+from tofcut.driver.protocol import DeviceInfo, FrameHeader, crc32, pack_header
+from tofcut.driver.stream import FrameParser
+from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.source import Exposure, Rendered
@@ -20,26 +22,40 @@ def render_run(source: SceneSource, count: int, start_s: float = 0.0) -> list[Re
     return [source.render(scene_exposure(source, start_s + i * period, i)) for i in range(count)]
 
 
-def raw_frame(source: SceneSource, rendered: Rendered, sequence: int, t0_s: float) -> RawFrame:
-    """A rendered exposure as the driver hands it over (no USB: the header the camera sends)."""
-    taps = np.ascontiguousarray(rendered.taps, dtype="<u2")
+def wire_frame(source: SceneSource, rendered: Rendered, sequence: int, t0_s: float) -> bytes:
+    """A rendered exposure as the camera puts it on the wire: header and payload (spec §5)."""
+    payload = np.ascontiguousarray(rendered.taps, dtype="<u2").tobytes()
     st = source.settings
+    calib = source.calibration
     exposure = scene_exposure(source, t0_s, sequence)
     header = FrameHeader(
-        sequence=sequence, device_time_us=round(t0_s * 1e6), width=taps.shape[2],
-        height=taps.shape[1], mod_code=st.mod_code, integration=st.integration, flags=0,
+        sequence=sequence, device_time_us=round(t0_s * 1e6), width=calib.width,
+        height=calib.height, mod_code=st.mod_code, integration=st.integration, flags=0,
         temperature_c=36.5, tap_interval_us=round(exposure.tap_interval_s * 1e6),
-        payload_size=taps.nbytes, payload_crc=crc32(taps.tobytes()),
+        payload_size=len(payload), payload_crc=crc32(payload),
     )  # fmt: skip
-    return RawFrame(header, taps, b"", 0)
+    return pack_header(header) + payload
+
+
+def wire_run(source: SceneSource, count: int) -> tuple[list[bytes], list[FrameTruth]]:
+    """The bytes of `count` consecutive frames from t = 0, and their truth."""
+    period = source.settings.frame_period * 1e-4 or 0.02
+    rendered = render_run(source, count)
+    wires = [wire_frame(source, r, i, i * period) for i, r in enumerate(rendered)]
+    return wires, [r.truth for r in rendered]
 
 
 def raw_run(source: SceneSource, count: int) -> tuple[list[RawFrame], list[FrameTruth]]:
-    """Raw frames and their truth for `count` consecutive exposures from t = 0."""
-    period = source.settings.frame_period * 1e-4 or 0.02
-    rendered = render_run(source, count)
-    raws = [raw_frame(source, r, i, i * period) for i, r in enumerate(rendered)]
-    return raws, [r.truth for r in rendered]
+    """Raw frames, parsed from their bytes by the driver, and their truth for `count`
+    consecutive exposures from t = 0."""
+    wires, truths = wire_run(source, count)
+    parser = FrameParser(device_info(source))
+    return [raw for wire in wires for raw in parser.feed(wire, 0)], truths
+
+
+def device_info(source: SceneSource) -> DeviceInfo:
+    """What GET_INFO would say of an emulated camera looking at `source`."""
+    return EmulatedCamera(source).info
 
 
 class ReplaySource:

@@ -67,7 +67,7 @@ def targets(results: Results) -> list[Target]:
     )  # fmt: skip
     ten = _row(results.get("tracker", {}).get("objects", []), objects=10)
     out.append(
-        _target("tracker, 10 objects, raw frame → tracks", "≥ 200 frames/s",
+        _target("tracker, 10 objects, raw bytes → tracks", "≥ 200 frames/s",
                 _value(ten, "fps"), "{:.0f} frames/s", lambda v: v >= 200)
     )  # fmt: skip
     live = results.get("live")
@@ -188,7 +188,7 @@ def markdown(results: Results, meta: dict[str, Any], errors: dict[str, str]) -> 
         )  # fmt: skip
     if "tracker" in results:
         tr = results["tracker"]
-        out += ["## Tracker, raw frame → tracks (demodulation + `Tracker.update`)", ""]
+        out += ["## Tracker, raw bytes → tracks (frame parser, demodulation, `Tracker.update`)", ""]
 
         def rows(
             items: list[dict[str, Any]], first: Callable[[dict[str, Any]], str]

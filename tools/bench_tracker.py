@@ -1,4 +1,5 @@
-"""Bench stage: the tracker, raw frame to tracks (demodulation and `Tracker.update`), with
+"""Bench stage: the tracker, raw bytes to tracks (the driver's frame parser, demodulation and
+`Tracker.update`), with
 1, 5, 10 and 20 boxes in view (`sim.crowd`), and with 10 boxes at three sensor sizes.
 
 Each case renders its frames first, then runs a fresh tracker over them several times: the
@@ -16,9 +17,10 @@ import numpy as np
 
 from tofcut.driver.demod import Optics, demodulate
 from tofcut.driver.frames import RawFrame
+from tofcut.driver.stream import FrameParser
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.renderer import SceneSource
-from tofcut.tools.bench_frames import raw_run
+from tofcut.tools.bench_frames import device_info, wire_run
 from tofcut.tools.bench_timing import CLOCK, percentiles_ms
 from tofcut.tools.cmd_track import BELT_SPEED_SIGMA
 from tofcut.tools.sources import belt_of, scene_metadata
@@ -46,24 +48,30 @@ class BeltTracker:
             belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
         )
         self.optics = Optics.from_calibration(source.calibration)
+        self.parser = FrameParser(device_info(source))
 
     def step(self, raw: RawFrame) -> TrackedFrame:
         """Raw frame to tracks."""
         return self.tracker.update(demodulate(raw, self.optics), self.prior)
 
+    def step_bytes(self, wire: bytes) -> TrackedFrame:
+        """One frame's bytes, as they came over USB, to tracks."""
+        (raw,) = self.parser.feed(wire, 0)
+        return self.step(raw)
+
 
 def time_tracking(source: SceneSource, timed: int, repeats: int) -> dict[str, Any]:
-    """Frame times of raw frame → tracks over `timed` frames after the warm-up, `repeats` times."""
-    raws, _ = raw_run(source, WARM_FRAMES + timed)
+    """Frame times of raw bytes → tracks over `timed` frames after the warm-up, `repeats` times."""
+    wires, _ = wire_run(source, WARM_FRAMES + timed)
     per_frame: list[float] = []
     in_view: list[int] = []
     for _ in range(repeats):
         bench = BeltTracker(source)
-        for raw in raws[:WARM_FRAMES]:
-            bench.step(raw)
-        for raw in raws[WARM_FRAMES:]:
+        for wire in wires[:WARM_FRAMES]:
+            bench.step_bytes(wire)
+        for wire in wires[WARM_FRAMES:]:
             start = CLOCK()
-            tracked = bench.step(raw)
+            tracked = bench.step_bytes(wire)
             per_frame.append(CLOCK() - start)
             in_view.append(sum(t.visible for t in tracked.tracks))
     median = float(np.median(per_frame))
