@@ -17,6 +17,7 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene
 from tofcut.tools.bench_report import markdown, targets
 from tofcut.tools.bench_runner import STAGES, run_stage
+from tofcut.tools.bench_segment import INSTALL_HINT
 from tofcut.tools.bench_timing import fit_exponent, median_seconds, percentiles_ms
 from tofcut.tools.cli import main
 
@@ -61,6 +62,20 @@ def test_targets_not_run_are_reported_as_not_measured_not_as_a_verdict():
     text = markdown({}, meta, {"live": "boom"})
     assert "not measured" in text
     assert "Stage `live` failed: `boom`" in text
+
+
+def test_without_opencv_the_report_says_how_to_get_grabcut():
+    meta = {"quick": True, "date": "d", "cpu_model": "c", "cpus": 2, "pinned_cpu": 1,
+            "python": "3", "numpy": "2"}  # fmt: skip
+    row = {"scene": "s", "object": "o", "energy": "range-data", "data_term": True,
+           "reference_cut_s": 0.004, "fast_cut_s": 0.001, "cut_ratio": 4.0,
+           "segment_reference_s": 0.005, "segment_fast_s": 0.002, "identical": True,
+           "iou_fast": 0.5, "iou_reference": 0.5}  # fmt: skip
+    segment = {"rows": [row], "grabcut": False, "note": INSTALL_HINT}
+    text = markdown({"segment": segment}, meta, {})
+    assert "GrabCut not measured" in text
+    assert "opencv-python-headless" in text
+    assert "| 4.0× |" in text
 
 
 def test_verdicts_follow_the_numbers():
