@@ -22,6 +22,7 @@ COMMANDS = [
     "tofcut.tools.cmd_reproduce",
     "tofcut.tools.cmd_ports",
     "tofcut.tools.cmd_soak",
+    "tofcut.tools.cmd_bench",
 ]
 """Each module has `register(subparsers)`, which adds its parser with `func` set."""
 

@@ -507,7 +507,8 @@ class Tracker:
         for r in near:
             t_lo, t_hi = np.percentile(across[pieces == r], [5, 95])
             keep.append(t_lo >= lo - slack and t_hi <= hi + slack)
-        return near[np.array(keep, bool)]
+        out: npt.NDArray[np.int32] = near[np.array(keep, bool)]
+        return out
 
     def _detect(self, frame: Frame, pieces: npt.NDArray[np.int32]) -> list[int]:
         """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
