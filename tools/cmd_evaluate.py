@@ -6,7 +6,9 @@ during the run (static scenery is background by definition of the empty-scene mo
 An object's position is the centroid of its visible surface (truth range along each of its
 pixels' rays), a track's the centroid it reports; they match within `--gate` metres
 (py-motmetrics, Hungarian matching). Tracks within the gate of an object too small to
-score, or of static scenery, are ignored: neither hits nor false positives.
+score, or of static scenery, are ignored: neither hits nor false positives. An object that
+leaves the field of view and comes back (the emulated scenes loop) is a new object to
+score, as it is to any tracker: its centroid's leaving the view ends a visit.
 """
 
 from __future__ import annotations
@@ -24,6 +26,8 @@ from tofcut.driver.capture import CaptureReader
 from tofcut.sim.truth import FrameTruth, load_truth, truth_path
 from tofcut.tools.sources import SourceError
 
+VISITS = 1000
+"""Object ids in the scores are object × VISITS + visit (see the module's docstring)."""
 STATIC_M = 0.01
 """An object whose centroid moves less than this over the run is scenery."""
 
@@ -57,8 +61,21 @@ def score(
     }  # fmt: skip
     acc = mm.MOTAccumulator(auto_id=False)
     ious: list[float] = []
+    corners = rays[[0, 0, -1, -1], [0, -1, 0, -1]]
+    lo = (corners[:, :2] / corners[:, 2:]).min(axis=0)
+    hi = (corners[:, :2] / corners[:, 2:]).max(axis=0)
+    visits: dict[int, int] = {}
+    left: dict[int, bool] = {}
     for truth in truths:
         seq = truth.sequence
+        for o in truth.objects:
+            c = o.centroid
+            inside = bool(c[2] > 0 and np.all((lo <= c[:2] / c[2]) & (c[:2] / c[2] <= hi)))
+            if o.pixels > 0 and left.get(o.id, True):
+                visits[o.id] = visits.get(o.id, 0) + 1
+                left[o.id] = False
+            if not inside and o.pixels == 0:
+                left[o.id] = True
         hyps = tracks.get(seq, [])
         counts = np.bincount(truth.labels.ravel(), minlength=max(ids, default=0) + 1)
         gt_ids, gt_pos, ignored = [], [], []
@@ -69,7 +86,7 @@ def score(
             mask = truth.labels == oid
             pos = (rays[mask] * truth.range[mask][:, None]).mean(axis=0)
             if oid in moving and n >= min_pixels:
-                gt_ids.append(oid)
+                gt_ids.append(oid * VISITS + visits.get(oid, 1))
                 gt_pos.append(pos)
             else:
                 ignored.append(pos)
@@ -90,7 +107,7 @@ def score(
         labels = masks.get(int(seq))
         if labels is None:
             continue
-        a = by_seq[int(seq)].labels == int(ev.OId)
+        a = by_seq[int(seq)].labels == int(ev.OId) // VISITS
         b = labels == int(ev.HId)
         ious.append(float((a & b).sum() / max(1, (a | b).sum())))
     mh = mm.metrics.create()

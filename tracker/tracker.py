@@ -57,7 +57,7 @@ class TrackerParams:
     """Weight of the 3D distance penalty (eq. 6), in the track's shape: (D−µ)ᵀΣ⁻¹(D−µ)."""
     object_cost: float = 8.0
     """Cost of any pixel belonging to an object: what the pixel's evidence must outweigh."""
-    deadband: float = 2.0
+    deadband: float = 1.0
     """Nearness (in noise sigmas) that costs the background nothing: plain sensor noise."""
     background_cap: float = 40.0
     """Most a pixel can cost the background, however far in front it stands."""
