@@ -31,11 +31,10 @@ from tofcut.sim.usb_backend import EmulatedBackend
 from tofcut.tools import pipeline
 from tofcut.tools.bench_frames import ReplaySource, render_run
 from tofcut.tools.bench_tracker import BeltTracker
+from tofcut.tools.cmd_track import RerunOutput
 from tofcut.tools.pipeline import LiveFeed, RunSummary
 from tofcut.tools.rerun_sink import RerunSink
 from tofcut.tools.rerun_target import RerunTarget
-from tofcut.tools.status import PipelineStatus
-from tofcut.tracker.tracks import TrackedFrame
 
 SCENE = "conveyor"
 READ_BYTES = 1 << 20
@@ -60,19 +59,6 @@ def camera_cpu_per_frame(camera: EmulatedCamera, frames: int) -> float:
     return seconds / frames
 
 
-class _Sink:
-    """The rerun sink as a pipeline output, as `tofcut live` uses it."""
-
-    def __init__(self, sink: RerunSink) -> None:
-        self.sink = sink
-
-    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
-        self.sink.log(tracked, status)
-
-    def close(self) -> None:
-        self.sink.close()
-
-
 def run_live(seconds: float) -> dict[str, Any]:
     """Track the conveyor live for `seconds` at its own 50 fps into an .rrd file."""
     source = open_scene(SCENE, 0)
@@ -95,7 +81,7 @@ def run_live(seconds: float) -> dict[str, Any]:
             feed.start()
             try:
                 summary = pipeline.run(
-                    feed, camera.demodulate, bench.tracker, [_Sink(sink)],
+                    feed, camera.demodulate, bench.tracker, [RerunOutput(sink)],
                     stats=lambda: camera.stats, dropped=lambda: feed.dropped,
                     prior=lambda frame: bench.prior,
                     should_stop=lambda s: time.perf_counter() - wall0 >= seconds,
