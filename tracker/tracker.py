@@ -1,14 +1,15 @@
 """The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`.
 
-Each frame: every track predicts its 3D position (constant velocity, the belt's pace as a
-prior); all tracks and the background then compete for the pixels in one Potts energy
+Each frame: every track predicts its 3D position (constant velocity; unseen, at the belt's
+pace); all tracks and the background then compete for the pixels in one Potts energy
 (α-expansion, `tofcut.tracker.multicut`) whose data term is the paper's eq. (6): a pixel's
-cost for track k grows with its 3D distance from the track's predicted position (measured
-in the track's own shape, so a person and a box are both "near" over their own extent),
-and its cost for the background with how far it stands out in front of the empty-scene
-range model. Pixels that no track can win whatever their neighbours do are fixed to the
-background before the cut, so the graph holds only the pixels that matter. What stands
-out and no track claims, for a few frames running, becomes a new track.
+cost for track k grows with its 3D distance from the track's prediction, measured in the
+track's own shape (so a person and a box are both "near" over their own extent) and from
+its predicted surface (so two touching objects are told apart), and its cost for the
+background with how far it stands out in front of the empty-scene range model. Pixels no
+track can win whatever their neighbours do are fixed to the background before the cut, so
+the graph holds only the pixels that matter. What stands out and no track can claim, two
+frames running, becomes a new track.
 """
 
 from __future__ import annotations
@@ -200,8 +201,8 @@ class Tracker:
     def tracks(self) -> int:
         return len(self._tracks)
 
-    def update(self, frame: Frame, belt: VelocityPrior | None = None) -> TrackedFrame:
-        """Track one frame; `belt` is the conveyor's velocity now, when known."""
+    def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
+        """Track one frame; `prior` is the belt's velocity now, when known."""
         p = self.params
         h, w = frame.shape
         if self.background is None:
@@ -214,10 +215,10 @@ class Tracker:
         for t in self._tracks:
             before = t.filter.position
             t.filter.predict(dt)
-            if belt is not None and not t.measured:
+            if prior is not None and not t.measured:
                 # unseen, an object keeps the belt's pace; seen, its own motion decides
                 # (not everything in view rides the belt)
-                t.filter.follow_belt(belt)
+                t.filter.follow_belt(prior)
             t.cloud = t.cloud + (t.filter.position - before)
         labels = self._segment(frame)
         found, ended = self._measure(frame, labels, dt)
