@@ -14,7 +14,7 @@ from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tools.cli import main
 from tofcut.tools.pipeline import LiveFeed
 from tofcut.tracker.belt import BeltGeometry
-from tofcut.tracker.multicut import PottsProblem, solve_potts
+from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.tracker import Tracker, TrackerParams
 
 
@@ -38,7 +38,9 @@ def test_the_joint_cut_is_exact_with_two_labels():
     rng = np.random.default_rng(1)
     for _ in range(30):
         problem = _random_problem(rng, 2, 8)
-        assert problem.energy(solve_potts(problem)) == pytest.approx(_brute_force(problem))
+        best = _brute_force(problem)
+        assert problem.energy(solve_potts(problem)) == pytest.approx(best)
+        assert problem.energy(solve_binary(problem)) == pytest.approx(best)
 
 
 def test_expansion_is_within_twice_the_minimum_with_more_labels():

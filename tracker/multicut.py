@@ -79,6 +79,13 @@ def _expand(problem: PottsProblem, labels: I64, alpha: int) -> I64:
     return out
 
 
+def solve_binary(problem: PottsProblem) -> I64:
+    """The exact minimum of a two-label problem: one min cut."""
+    if problem.labels != 2:
+        raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
+    return _expand(problem, np.zeros(problem.nodes, np.int64), 1)
+
+
 def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int = 4) -> I64:
     """Labels of a (local) minimum of the Potts energy by α-expansion, from `start` (default:
     each node's cheapest label). Exact when there are two labels."""

@@ -29,7 +29,7 @@ from tofcut.tracker.background import BackgroundModel, BackgroundParams
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
-from tofcut.tracker.multicut import PottsProblem, solve_potts
+from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 F64 = npt.NDArray[np.float64]
@@ -564,6 +564,7 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
     local = np.empty(n, np.int64)
     chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
     cheapest = unary.min(axis=0)
+    binary: list[tuple[I64, I64, int]] = []
     for k in np.unique(edge_part):
         nodes = order[bounds[k] : bounds[k + 1]]
         edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
@@ -572,10 +573,20 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
         can_win[0] = True
         labels = np.nonzero(can_win)[0]
-        if labels.size == 1:
-            continue
-        problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
-        chosen[nodes] = labels[solve_potts(problem)]
+        if labels.size == 2:
+            binary.append((nodes, edges, int(labels[1])))
+        elif labels.size > 2:
+            problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
+            chosen[nodes] = labels[solve_potts(problem)]
+    if binary:
+        # every part where one track meets the background: one exact cut for them all
+        nodes = np.concatenate([b[0] for b in binary])
+        edges = np.concatenate([b[1] for b in binary])
+        track = np.concatenate([np.full(b[0].size, b[2]) for b in binary])
+        local[nodes] = np.arange(nodes.size)
+        pair = np.stack([unary[0, nodes], unary[track, nodes]])
+        problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
+        chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
 
 
