@@ -55,14 +55,13 @@ class BackgroundParams:
 
 
 class BackgroundModel:
-    """Per-pixel range and intensity of the empty scene, with the range noise of each pixel."""
+    """Per-pixel range of the empty scene, with the range noise of each pixel."""
 
     def __init__(self, shape: tuple[int, int], params: BackgroundParams | None = None) -> None:
         self.params = params or BackgroundParams()
         self.shape = shape
-        self._seen: list[tuple[F64, F64, B]] = []
+        self._seen: list[tuple[F64, B]] = []
         self.range: F64 = np.full(shape, np.nan)
-        self.intensity: F64 = np.full(shape, np.nan)
         self.sigma: F64 = np.full(shape, self.params.min_sigma_m)
         self.known: B = np.zeros(shape, bool)
         """Pixels whose scenery range is known (valid in enough of the learning frames)."""
@@ -77,11 +76,10 @@ class BackgroundModel:
         """Feed a learning frame, less the pixels in `exclude` (objects already followed);
         True once the model is ready."""
         valid = frame.valid if exclude is None else frame.valid & ~exclude
-        self._seen.append((frame.range, frame.intensity, valid))
+        self._seen.append((frame.range, valid))
         if len(self._seen) < self.params.learn_frames:
             return False
-        ranges = np.stack([np.where(v, r, np.nan) for r, _, v in self._seen])
-        inten = np.stack([np.where(v, i, np.nan) for _, i, v in self._seen])
+        ranges = np.stack([np.where(v, r, np.nan) for r, v in self._seen])
         self._seen.clear()
         count = np.sum(np.isfinite(ranges), axis=0)
         self.known = count >= max(2, ranges.shape[0] // 2)
@@ -96,9 +94,6 @@ class BackgroundModel:
             r = np.where(scenery, ranges, np.nan)
             self.range = np.where(self.known, np.nanmedian(r, axis=0), np.nan)
             spread = np.nanstd(r, axis=0)
-            self.intensity = np.where(
-                self.known, np.nanmedian(np.where(scenery, inten, np.nan), axis=0), np.nan
-            )
         self.sigma = np.maximum(np.nan_to_num(spread, nan=0.0), self.params.min_sigma_m)
         self.ready = True
         return True
@@ -147,7 +142,6 @@ class BackgroundModel:
         # estimate until real objects no longer stand out of it
         blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
         self.range[blend] += p.rate * deviation[blend]
-        self.intensity[blend] += p.rate * (frame.intensity[blend] - self.intensity[blend])
         var = self.sigma[blend] ** 2
         # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
         var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
@@ -156,7 +150,6 @@ class BackgroundModel:
         self.range[revealed] = self._farther_min[revealed]
         self.range[newly] = frame.range[newly]
         jump = revealed | newly
-        self.intensity[jump] = frame.intensity[jump]
         self._farther[jump] = 0
         self._farther_min[jump] = np.inf
         self._unknown_seen[newly] = 0

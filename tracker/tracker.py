@@ -37,6 +37,8 @@ B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]
 
+SHAPE_FLOOR_M = 0.01
+"""No track's shape is thinner than this (1σ) in any direction."""
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
 SEED_WINDOW = 10
@@ -138,7 +140,6 @@ class _Live:
 @dataclass(eq=False)
 class _Candidate:
     centroid: F64
-    points: F64
     seen: int = 1
 
 
@@ -197,10 +198,6 @@ class Tracker:
                 raise ValueError(f"a target point must be three finite numbers, got {point!r}")
         self._seeds.append((pixel, point))
 
-    @property
-    def tracks(self) -> int:
-        return len(self._tracks)
-
     def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
         """Track one frame; `prior` is the belt's velocity now, when known."""
         p = self.params
@@ -258,7 +255,7 @@ class Tracker:
             region = pieces == pieces[v, u] if pieces[v, u] else np.zeros_like(ball)
             region[v, u] = True
             pts = frame.xyz[region]
-            born.append(self._start(pts, _shape_of(pts, 0.01, self.belt)))
+            born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
         self._seeds.clear()
         return born
 
@@ -448,7 +445,7 @@ class Tracker:
                 t.measured = usual == 0 or whole
                 if t.measured:
                     t.filter.correct(pts.mean(axis=0))
-                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, 0.01, self.belt)
+                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
                 pts = frame.xyz[mask]
@@ -483,9 +480,8 @@ class Tracker:
         pos = t.filter.position
         if pos[2] <= 0:
             return False
-        rays = frame.xyz / np.maximum(frame.range[..., None], 1e-9)
-        # the sensor's field of view, from its corner rays, in normalised coordinates
-        corners = rays[[0, 0, -1, -1], [0, -1, 0, -1]]
+        # the sensor's field of view, from its corner pixels, in normalised coordinates
+        corners = frame.xyz[[0, 0, -1, -1], [0, -1, 0, -1]]
         xs = corners[:, 0] / corners[:, 2]
         ys = corners[:, 1] / corners[:, 2]
         x, y = pos[0] / pos[2], pos[1] / pos[2]
@@ -536,13 +532,13 @@ class Tracker:
                     match = c
                     break
             if match is None:
-                next_candidates.append(_Candidate(centroid, pts))
+                next_candidates.append(_Candidate(centroid))
                 continue
             self._candidates.remove(match)
             match.seen += 1
-            match.centroid, match.points = centroid, pts
+            match.centroid = centroid
             if match.seen >= p.confirm_frames:
-                born.append(self._start(pts, _shape_of(pts, 0.01, self.belt)))
+                born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
