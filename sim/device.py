@@ -55,7 +55,10 @@ from tofcut.sim.source import Exposure, TapSource
 READOUT_US = 200
 """Time between the end of one tap's integration and the start of the next."""
 FIFO_FRAMES = 4
-TRUTH_KEPT = 256
+TRUTH_KEPT = 32
+"""Frames whose truth is kept. A frame's truth is made as it goes on the wire and asked for as
+it arrives (`tofcut record`, tests), so a few frames are plenty; 32 leave room for a host that
+reads several frames a transfer, at about 200 KB each at 176×144 (labels and range)."""
 
 
 class Stall(Exception):
@@ -517,6 +520,6 @@ class EmulatedCamera:
             self._truth.popitem(last=False)
 
     def truth(self, sequence: int) -> object | None:
-        """Ground truth of a recently sent frame (the last few hundred are kept)."""
+        """Ground truth of a recently sent frame (the last `TRUTH_KEPT`), else None."""
         with self._lock:
             return self._truth.get(sequence)

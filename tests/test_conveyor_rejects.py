@@ -186,6 +186,18 @@ def test_the_scheduler_fires_matching_objects_once_when_they_reach_the_diverter(
     assert scheduler.stats.passed == 2
 
 
+def test_a_long_run_keeps_the_newest_rejects_and_counts_them_all(monkeypatch):
+    monkeypatch.setattr("tofcut.tracker.rejects.EVENTS_KEPT", 2)
+    objects = {i: (-0.1 - 0.15 * i, (0.08, 0.08, 0.12)) for i in range(1, 5)}
+    scheduler = RejectScheduler(
+        RejectRule.parse("height > 0.08"), BELT, 0.6, Belt(0.4).at, lambda e: None
+    )
+    fired = run_line(scheduler, objects, Belt(0.4), until_m=1.5)
+    assert [e.track_id for e in fired] == [1, 2, 3, 4]
+    assert [e.track_id for e in scheduler.events] == [3, 4]
+    assert scheduler.stats.fired == 4
+
+
 def test_a_python_callable_as_the_rule_and_the_majority_of_views_decides():
     belt = Belt(0.4)
     flicker = {"n": 0}

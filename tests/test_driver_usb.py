@@ -23,6 +23,7 @@ from tofcut.driver import (
 )
 from tofcut.driver.protocol import PRODUCT, STATUS_FIFO_OVERFLOW, STATUS_STREAMING, Request
 from tofcut.sim import EmulatedBackend, EmulatedCamera, TestPattern
+from tofcut.sim.device import TRUTH_KEPT
 
 
 class FakeClock:
@@ -133,6 +134,9 @@ def test_a_stream_of_frames_arrives_with_no_loss():
     assert set(times.tolist()) == {20_000}  # 50 fps, the reset FRAME_PERIOD
     assert all(f.host_time_ns > 0 for f in frames)
     assert emu.frames_sent == 60
+    # The emulator keeps only the newest frames' truth (a long run must not grow).
+    assert emu.truth(59) is not None
+    assert emu.truth(59 - TRUTH_KEPT) is None
 
 
 def test_decoded_range_matches_the_source_truth():

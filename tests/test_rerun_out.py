@@ -5,11 +5,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import itertools
 import os
 import signal
 import subprocess
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +24,7 @@ from tofcut.driver import Camera
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.config import CameraConfig, frame_period_for
 from tofcut.sim import EmulatedBackend, EmulatedCamera, FrameTruth, open_scene
-from tofcut.tools import rerun_log
+from tofcut.tools import rerun_log, rerun_memory
 from tofcut.tools.rerun_log import FrameLogger, track_color
 from tofcut.tools.rerun_sink import RerunOutputError, RerunSink, measure_logging_cost
 from tofcut.tools.rerun_target import (
@@ -141,15 +143,27 @@ def recording(tmp_path_factory, run) -> tuple[Path, RerunSink]:
 # --- reading a recording back with rerun's own reader ---------------------------------------
 
 
+def reader(path: Path) -> RrdReader:
+    with warnings.catch_warnings():  # our files have no footer (see `RerunTarget.attach`)
+        warnings.filterwarnings("ignore", "RRD file has no footer")
+        return RrdReader(path)
+
+
 def chunks(path: Path) -> list[rr.chunk.Chunk]:
-    return list(RrdReader(path).stream())
+    return list(reader(path).stream())
 
 
-def rrd_verify(path: Path) -> subprocess.CompletedProcess[str]:
-    """Rerun's own check that a file loads and is interpreted correctly."""
+def rerun_cli(*args: str) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, RERUN_ANALYTICS="0")
-    cmd = [str(RERUN_CLI), "rrd", "verify", str(path)]
-    return subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
+    return subprocess.run(
+        [str(RERUN_CLI), *args], capture_output=True, text=True, check=False, env=env
+    )
+
+
+def rrd_verify(path: Path, footer: bool = False) -> subprocess.CompletedProcess[str]:
+    """Rerun's own check that a file loads and is interpreted correctly (our files have no
+    footer, see `RerunTarget.attach`; `footer=True` checks for one too)."""
+    return rerun_cli("rrd", "verify", f"--check-footers={str(footer).lower()}", str(path))
 
 
 def all_rows(
@@ -192,6 +206,17 @@ def test_rerun_verifies_the_recording(recording):
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+def test_the_file_has_no_footer_and_rerun_optimize_adds_one(recording, tmp_path):
+    path, _ = recording
+    checked = rrd_verify(path, footer=True)
+    assert "Missing RRD footer" in checked.stdout + checked.stderr
+    optimized = tmp_path / "optimized.rrd"
+    assert rerun_cli("rrd", "optimize", str(path), "-o", str(optimized)).returncode == 0
+    result = rrd_verify(optimized, footer=True)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert frame_sequences(optimized) == frame_sequences(path)
+
+
 def test_the_recording_holds_every_entity_and_a_blueprint(recording):
     path, _ = recording
     entities = {ch.entity_path for ch in chunks(path)}
@@ -210,7 +235,7 @@ def test_the_recording_holds_every_entity_and_a_blueprint(recording):
         "/events/device",
     } | {f"/status/{name}" for name in rerun_log.SERIES}
     assert expected <= entities
-    assert len(RrdReader(path).blueprints()) == 1
+    assert len(reader(path).blueprints()) == 1
 
 
 def test_every_frame_is_on_both_timelines(recording, run):
@@ -385,6 +410,21 @@ def test_a_file_loses_nothing_even_when_its_writer_stalls(tmp_path, run, monkeyp
     assert frame_sequences(path) == [t.sequence for t, _ in frames]
 
 
+@pytest.mark.parametrize("lossless", [True, False])
+def test_a_file_waits_for_rerun_to_write_every_few_frames(tmp_path, run, monkeypatch, lossless):
+    calibration, belt, frames = run
+    synced_after: list[int] = []
+    monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 5)
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=lossless)
+    monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written + 1))
+    for f in frames[:12]:
+        sink.log(*f)
+    sink.close()
+    # rerun's own queue to a file is unbounded: a file's worker lets it drain every 5 frames;
+    # a live viewer's pushes back by itself.
+    assert synced_after == ([5, 10] if lossless else [])
+
+
 def test_a_live_viewer_that_never_recovers_cannot_hold_up_close(tmp_path, run, monkeypatch):
     calibration, belt, frames = run
     stall = Stall(monkeypatch)
@@ -520,6 +560,27 @@ def test_logging_cost_is_measured_against_tracking_time(run):
     assert cost.cpu_ms_per_frame == pytest.approx(1000 * cost.cpu_s / len(frames))
     with pytest.raises(ValueError, match="frame"):
         measure_logging_cost([], calibration, tracking_s=1.0)
+
+
+def test_the_memory_check_replays_a_run_with_time_going_on_and_new_ids(run):
+    calibration, belt, frames = run
+    base = frames[:6]
+    replay = list(rerun_memory.endless(base, 14))
+    assert [t.sequence for t, _ in replay] == list(range(14))
+    times = [t.frame.device_time_us for t, _ in replay]
+    assert all(b > a for a, b in itertools.pairwise(times))
+    span = 1 + max(t.id for tracked, _ in base for t in tracked.tracks)
+    for i, (tracked, status) in enumerate(replay):
+        original = base[i % 6][0]
+        offset = span * (i // 6)
+        assert [t.id for t in tracked.tracks] == [t.id + offset for t in original.tracks]
+        assert np.array_equal(tracked.labels > 0, original.labels > 0)
+        assert set(np.unique(tracked.labels)) - {0} == {t.id + offset for t in original.tracks}
+        assert tracked.born == tuple(i + offset for i in original.born)
+        assert status.frames == i + 1
+    grown = rerun_memory.measure(base, calibration, 20, belt)
+    assert grown.samples >= 2
+    assert grown.peak_b >= grown.start_b > 0
 
 
 def test_a_sink_from_the_options_says_where_it_writes(tmp_path, monkeypatch, capsys, run):

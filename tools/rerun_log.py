@@ -228,6 +228,10 @@ class FrameLogger:
         """A device or pipeline event, at the time of the last frame written."""
         self.rec.log(DEVICE_EVENTS, rr.TextLog(text, level=level))
 
+    def sync(self) -> None:
+        """Wait until everything logged so far has reached the sinks (a file: written)."""
+        self.rec.flush()
+
     def close(self, timeout_s: float | None, keep_serving: bool = False) -> None:
         """Flush, then close the sinks: a file gets its footer and is complete.
 

@@ -4,8 +4,10 @@ Live viewers (spawn, connect, serve, stdout) get a short queue: when the viewer 
 behind, rerun's own send queue pushes back on the worker, our queue fills, and the oldest
 queued frame is dropped and counted, so the camera and tracker never wait. A file gets a
 longer queue and loses nothing: if the worker ever falls that far behind, `log()` waits for
-room (counted in `stats`). Events are never dropped. `close()` drains the queue and closes
-the recording, so a file is complete; it also runs at interpreter exit (Ctrl-C included).
+room (counted in `stats`); the worker in turn waits for rerun to write every `SYNC_FRAMES`
+frames, so nothing piles up in rerun's own unbounded queues to the file. Events are never
+dropped. `close()` drains the queue and closes the recording, so a file is complete; it also
+runs at interpreter exit (Ctrl-C included).
 """
 
 from __future__ import annotations
@@ -36,6 +38,10 @@ LIVE_QUEUE_FRAMES = 8
 """About 0.15 s at 50 fps: a live view should lag little, so it drops early."""
 FILE_QUEUE_FRAMES = 64
 """About 1.3 s at 50 fps of slack before a file makes `log()` wait."""
+SYNC_FRAMES = 16
+"""A file's worker waits for rerun to write what it was given every this many frames: rerun's
+own queues to a file are unbounded, so a writer faster than the disk would pile frames up in
+memory (about 190 KB each) instead of waiting in `log()` as a file should."""
 LIVE_CLOSE_TIMEOUT_S = 5.0
 """How long `close()` gives a live viewer to take what is queued before abandoning it."""
 
@@ -231,6 +237,8 @@ class RerunSink:
             try:
                 if isinstance(item, _Frame):
                     self._writer.write_frame(item.tracked, item.status, dropped)
+                    if self.lossless and (self._written + 1) % SYNC_FRAMES == 0:
+                        self._writer.sync()
                 else:
                     self._writer.write_event(item.text, item.level)
             except Exception as exc:

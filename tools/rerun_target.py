@@ -55,10 +55,16 @@ class RerunTarget:
         return "streaming to a newly spawned rerun viewer"
 
     def attach(self, rec: rr.RecordingStream, blueprint: rrb.Blueprint) -> None:
-        """Point `rec` at this target, with `blueprint` as the default layout (as rerun does)."""
+        """Point `rec` at this target, with `blueprint` as the default layout (as rerun does).
+
+        Files and stdout get no footer: rerun keeps the footer's manifest (metadata on every
+        chunk written) in memory until the end, about 30 KB a frame here, so a run of weeks
+        would grow without bound. The stream is complete without it; `rerun rrd optimize
+        RUN.rrd -o OUT.rrd` writes a copy with one.
+        """
         if self.kind == "save":
             assert self.path is not None
-            rec.save(self.path, default_blueprint=blueprint)
+            rec.save(self.path, default_blueprint=blueprint, write_footer=False)
         elif self.kind == "spawn":
             rec.spawn(default_blueprint=blueprint)
         elif self.kind == "connect":
@@ -67,7 +73,7 @@ class RerunTarget:
             server = rec.serve_grpc(default_blueprint=blueprint)
             rr.serve_web_viewer(open_browser=True, connect_to=server)
         else:
-            rec.stdout(default_blueprint=blueprint)
+            rec.stdout(default_blueprint=blueprint, write_footer=False)
 
 
 def add_rerun_options(parser: argparse.ArgumentParser) -> None:

@@ -77,6 +77,8 @@ class _Candidate:
 
 _MAX_VIEWS = 200
 _MAX_DONE = 4096
+EVENTS_KEPT = 1024
+"""Fired rejects kept for `events` (the newest); `stats.fired` counts every one."""
 
 
 class RejectScheduler:
@@ -101,11 +103,12 @@ class RejectScheduler:
         self._candidates: dict[int, _Candidate] = {}
         self._done: dict[int, None] = {}
         """Tracks that reached the diverter (an ordered set, the newest `_MAX_DONE`)."""
-        self._events: list[RejectEvent] = []
+        self._events: deque[RejectEvent] = deque(maxlen=EVENTS_KEPT)
         self._stats = {"views": 0, "unplaced": 0, "fired": 0, "passed": 0}
 
     @property
     def events(self) -> list[RejectEvent]:
+        """The newest `EVENTS_KEPT` rejects fired, oldest first."""
         with self._lock:
             return list(self._events)
 
