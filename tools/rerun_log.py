@@ -245,7 +245,7 @@ class FrameLogger:
         self.rec.flush()
 
     def close(self, timeout_s: float | None, keep_serving: bool = False) -> None:
-        """Flush, then close the sinks: a file gets its footer and is complete.
+        """Flush, then close the sinks: a file is complete.
 
         `keep_serving` leaves a gRPC server up for viewers that connect after the run (it
         stops when the recording stream is collected, at the latest at exit).

@@ -40,8 +40,8 @@ FILE_QUEUE_FRAMES = 64
 """About 1.3 s at 50 fps of slack before a file makes `log()` wait."""
 SYNC_FRAMES = 16
 """A file's worker waits for rerun to write what it was given every this many frames: rerun's
-own queues to a file are unbounded, so a writer faster than the disk would pile frames up in
-memory (about 190 KB each) instead of waiting in `log()` as a file should."""
+own queues to a file are unbounded, so a worker faster than rerun's encoder and the disk
+would pile frames up in memory (about 190 KB each) instead of waiting in `log()`."""
 LIVE_CLOSE_TIMEOUT_S = 5.0
 """How long `close()` gives a live viewer to take what is queued before abandoning it."""
 
@@ -253,7 +253,7 @@ class RerunSink:
     # --- the end ----------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Write what is queued and close the recording (a file gets its footer); idempotent.
+        """Write what is queued and close the recording (a file is then complete); idempotent.
 
         A file waits for every frame. A live viewer gets `LIVE_CLOSE_TIMEOUT_S`; what it has
         not taken by then is counted as dropped. A served recording stays served while this
