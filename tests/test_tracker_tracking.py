@@ -201,3 +201,68 @@ def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():
     swapped = score(truths, tracks, masks, rays)
     assert swapped["id_switches"] == 2
     assert swapped["mota"] < 1.0
+
+
+def _pair_entering(side_by_side: bool):
+    """The conveyor with two touching boxes of the belt's reflectivity coming into view
+    together: side by side across the belt, or one behind the other along it."""
+    import tomllib
+
+    from tofcut.sim.catalog import scene_path
+    from tofcut.sim.renderer import SceneSource
+    from tofcut.sim.scene_file import parse_scene
+
+    doc = tomllib.loads(scene_path("conveyor").read_text(encoding="utf-8"))
+    first = {"shape": "box", "albedo": 0.46, "motion": "belt"}
+    if side_by_side:  # boxes 5 and 6 of the scene
+        a = {**first, "size": [0.14, 0.14, 0.14], "position": [-0.75, 0.16, 0.07]}
+        b = {**first, "size": [0.20, 0.16, 0.18], "position": [-0.75, 0.01, 0.09]}
+    else:  # boxes 1 and 2, end to end
+        a = {**first, "size": [0.26, 0.20, 0.14], "position": [-1.0, 0.05, 0.07]}
+        b = {**first, "size": [0.18, 0.18, 0.10], "position": [-0.78, 0.08, 0.05]}
+    doc["object"] = [{"name": "a", **a}, {"name": "b", **b}]
+    return SceneSource(parse_scene(doc, "pair"), 0)
+
+
+@pytest.mark.parametrize("side_by_side", [True, False])
+def test_two_touching_boxes_coming_into_view_together_get_a_track_each(side_by_side):
+    src = _pair_entering(side_by_side)
+    b = src.belt
+    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    from tofcut.tracker.belt_prior import VelocityPrior
+
+    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    period = src.settings.frame_period * 1e-4
+    for i in range(200):
+        frame, truth = decode(src, scene_exposure(src, i * period, i))
+        out = tracker.update(frame, prior)
+    owners = set()
+    for obj in truth.objects:  # both wholly in view by now
+        on = out.labels[truth.labels == obj.id]
+        ids, counts = np.unique(on, return_counts=True)
+        owner = int(ids[np.argmax(counts)])
+        assert owner > 0, (obj.name, ids, counts)
+        assert counts.max() > 0.8 * on.size, (obj.name, ids, counts)
+        assert np.mean(truth.labels[out.labels == owner] == obj.id) > 0.9
+        owners.add(owner)
+    assert len(owners) == 2
+
+
+def test_a_seeded_person_is_followed_under_one_id():
+    # the paper's Experiment 3: a walking person, seeded once, at 3 m and 15 MHz (range noise
+    # about 3 cm). Issue 5's bar is a mean IoU of 0.8; this holds what the tracker reaches
+    # now (about 0.75 after the first half second), so that it does not slip back
+    src = open_scene("person", 0)
+    tracker = Tracker()
+    tracker.add_target(pixel=src.target.seed_pixel)
+    period = src.settings.frame_period * 1e-4
+    ious = []
+    for i in range(150):
+        frame, truth = decode(src, scene_exposure(src, i * period, i))
+        out = tracker.update(frame)
+        assert [t.id for t in out.tracks] == [1]
+        assert out.tracks[0].visible
+        person = truth.labels > 0
+        mask = out.labels == 1
+        ious.append((mask & person).sum() / (mask | person).sum())
+    assert np.mean(ious[25:]) > 0.7, np.mean(ious[25:])

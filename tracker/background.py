@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
 from tofcut.tracker.belt import BeltGeometry
@@ -21,6 +22,9 @@ from tofcut.tracker.belt import BeltGeometry
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 
+NOISE_SHARE = 0.7
+"""Share of the noise its amplitude implies that a pixel's learned noise is at least: three
+frames' spread alone can make a pixel look many times quieter than it is."""
 BLEND_SIGMAS = 2.5
 BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
@@ -61,6 +65,7 @@ class BackgroundModel:
         self.params = params or BackgroundParams()
         self.shape = shape
         self._seen: list[tuple[F64, B]] = []
+        self._noise: list[F64] = []
         self.range: F64 = np.full(shape, np.nan)
         self.sigma: F64 = np.full(shape, self.params.min_sigma_m)
         self.known: B = np.zeros(shape, bool)
@@ -72,15 +77,19 @@ class BackgroundModel:
         self.ready = False
         """True once the learning frames are in."""
 
-    def learn(self, frame: Frame, exclude: B | None = None) -> bool:
-        """Feed a learning frame, less the pixels in `exclude` (objects already followed);
+    def learn(self, frame: Frame, noise: F64, occupied: F64, reach: float) -> bool:
+        """Feed a learning frame with its range noise (`tofcut.tracker.noise`), less the
+        pixels within `reach` of the (k, 3) `occupied` points (objects already followed);
         True once the model is ready."""
-        valid = frame.valid if exclude is None else frame.valid & ~exclude
+        valid = frame.valid & ~_near(frame.xyz, frame.valid, occupied, reach)
         self._seen.append((frame.range, valid))
+        self._noise.append(np.where(valid, noise, np.nan))
         if len(self._seen) < self.params.learn_frames:
             return False
         ranges = np.stack([np.where(v, r, np.nan) for r, v in self._seen])
+        noise = np.stack(self._noise)
         self._seen.clear()
+        self._noise.clear()
         count = np.sum(np.isfinite(ranges), axis=0)
         self.known = count >= max(2, ranges.shape[0] // 2)
         with np.errstate(all="ignore"), warnings.catch_warnings():
@@ -93,7 +102,7 @@ class BackgroundModel:
             scenery = np.abs(ranges - far) < 0.05
             r = np.where(scenery, ranges, np.nan)
             self.range = np.where(self.known, np.nanmedian(r, axis=0), np.nan)
-            spread = np.nanstd(r, axis=0)
+            spread = np.fmax(np.nanstd(r, axis=0), NOISE_SHARE * np.nanmedian(noise, axis=0))
         self.sigma = np.maximum(np.nan_to_num(spread, nan=0.0), self.params.min_sigma_m)
         self.ready = True
         return True
@@ -123,9 +132,11 @@ class BackgroundModel:
             z = (self.range - frame.range) / self.sigma
         return np.where(frame.valid & self.known, z, 0.0)
 
-    def update(self, frame: Frame, free: B) -> None:
+    def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
-        range once the pixel has read farther for `reveal_frames` frames in a row."""
+        range once the pixel has read farther for `reveal_frames` frames in a row. A pixel
+        not known yet is learned after `reveal_frames` free frames, unless it lies within
+        `reach` of one of the `occupied` (k, 3) points: an object's part its track missed."""
         p = self.params
         usable = free & frame.valid
         with np.errstate(invalid="ignore"):
@@ -136,6 +147,7 @@ class BackgroundModel:
         unknown = usable & ~self.known
         self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
         newly = self._unknown_seen >= p.reveal_frames
+        newly &= ~_near(frame.xyz, newly, occupied, reach)
         revealed = self._farther >= p.reveal_frames
         # follow only what looks like the same scenery; anything farther off than
         # BLEND_SIGMAS is an object's edge or a flying pixel and would widen the noise
@@ -149,8 +161,18 @@ class BackgroundModel:
         # back to the nearest of the farther readings: flying pixels only ever read too far
         self.range[revealed] = self._farther_min[revealed]
         self.range[newly] = frame.range[newly]
+        self.sigma[newly] = noise[newly]
         jump = revealed | newly
         self._farther[jump] = 0
         self._farther_min[jump] = np.inf
         self._unknown_seen[newly] = 0
         self.known |= newly
+
+
+def _near(xyz: F64, where: B, points: F64, reach: float) -> B:
+    """Which pixels in `where` have their 3D point within `reach` of one of `points`."""
+    near = np.zeros(where.shape, bool)
+    if len(points) and where.any():
+        gap, _ = cKDTree(points).query(xyz[where], distance_upper_bound=reach)
+        near[where] = np.isfinite(gap)
+    return near

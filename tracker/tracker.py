@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
+from scipy.optimize import linear_sum_assignment
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
@@ -30,6 +31,7 @@ from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 F64 = npt.NDArray[np.float64]
@@ -41,8 +43,6 @@ SHAPE_FLOOR_M = 0.01
 """No track's shape is thinner than this (1σ) in any direction."""
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
-SEED_WINDOW = 10
-"""Half-side of the window around a seed whose noise sets the seed's surface step."""
 USUAL_MEMORY = 0.995
 """Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
 
@@ -64,7 +64,7 @@ class TrackerParams:
     """Nearness (in noise sigmas) that costs the background nothing: plain sensor noise."""
     background_cap: float = 40.0
     """Most a pixel can cost the background, however far in front it stands."""
-    unknown_cost: float = 11.0
+    unknown_cost: float = 30.0
     """Background cost where the empty scene is not known yet (a seeded target's pixels)."""
     smoothness: float = 0.8
     """Potts weight λ between neighbours at the same 3D place."""
@@ -83,6 +83,9 @@ class TrackerParams:
     whole_fraction: float = 0.85
     """A view within this share of the track's usual size (either way) shows the whole
     object, and is measured; others are partial (occlusion) or tainted."""
+    keep_clear_m: float = 0.5
+    """Pixels this near a track's surface are never learned as scenery: they are likely
+    parts of it the cut missed (a target standing in view from the first frame)."""
     seed_radius_m: float = 1.0
     """A seeded target is the surface connected to its seed within this distance of it."""
     surface_weight: float = 0.2
@@ -92,6 +95,11 @@ class TrackerParams:
     """How far (1σ) an object's surface may stray from where it was predicted, per frame."""
     cloud_points: int = 400
     """Points kept of each track's surface for that distance (a fixed subsample)."""
+    split_share: float = 0.2
+    """A track whose mask holds two surfaces (apart by `connect_m` steps), the smaller at
+    least this share of it, holds two objects..."""
+    split_frames: int = 3
+    """...when it does so this many frames running: the surfaces are then dealt out again."""
 
     def __post_init__(self) -> None:
         positive = {
@@ -101,6 +109,7 @@ class TrackerParams:
             "gate_m": self.gate_m,
             "max_hidden_s": self.max_hidden_s,
             "seed_radius_m": self.seed_radius_m,
+            "keep_clear_m": self.keep_clear_m,
             "surface_sigma_m": self.surface_sigma_m,
         }
         for name, value in positive.items():
@@ -112,6 +121,8 @@ class TrackerParams:
             raise ValueError("smoothness, deadband and surface_weight must not be negative")
         if self.background_cap <= self.object_cost:
             raise ValueError("background_cap must exceed object_cost, or nothing is ever found")
+        if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1:
+            raise ValueError("split_share must be in (0, 0.5] and split_frames at least 1")
         if self.confirm_frames < 1 or self.min_pixels < 1:
             raise ValueError("confirm_frames and min_pixels must be at least 1")
         if not 0.0 < self.whole_fraction <= 1.0:
@@ -134,6 +145,8 @@ class _Live:
     """Whether the last frame measured the track (a whole, untainted view)."""
     hidden_s: float = 0.0
     hidden_frames: int = 0
+    split_frames: int = 0
+    """Frames running in which the track's mask held two surfaces."""
     last: Track | None = None
 
 
@@ -208,7 +221,8 @@ class Tracker:
         if self._last_time_us is not None:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
         self._last_time_us = frame.device_time_us
-        born = self._take_seeds(frame)
+        noise = range_noise(frame, p.background.min_sigma_m)
+        born = self._take_seeds(frame, noise)
         for t in self._tracks:
             before = t.filter.position
             t.filter.predict(dt)
@@ -217,19 +231,24 @@ class Tracker:
                 # (not everything in view rides the belt)
                 t.filter.follow_belt(prior)
             t.cloud = t.cloud + (t.filter.position - before)
-        labels = self._segment(frame)
-        found, ended = self._measure(frame, labels, dt)
+        # before the scenery is known, a target is what is 3D-connected to where it is
+        ready = self.background.ready
+        labels = self._segment(frame, noise) if ready else self._grown(frame, noise)
+        found, ended = self._measure(frame, labels, dt, noise)
         born += found
-        if self.background.ready:
-            self.background.update(frame, labels == 0)
-        elif self.background.learn(frame, labels > 0) and self.belt is not None:
+        if ready:
+            self.background.update(frame, labels == 0, noise, self._surfaces(), p.keep_clear_m)
+        elif (
+            self.background.learn(frame, noise, self._surfaces(), p.keep_clear_m)
+            and self.belt is not None
+        ):
             self.background.clear_belt(frame, self.belt)
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
 
     # --- seeds ----------------------------------------------------------------------------
 
-    def _take_seeds(self, frame: Frame) -> list[int]:
+    def _take_seeds(self, frame: Frame, noise: F64) -> list[int]:
         """Start the targets given by the user: each is the surface 3D-connected to its seed
         within `seed_radius_m` of it (so it is followed whole from the first frame)."""
         born = []
@@ -237,38 +256,41 @@ class Tracker:
         for pixel, point in self._seeds:
             if pixel is None:
                 assert point is not None
-                dist = np.linalg.norm(frame.xyz - point, axis=-1)
-                dist[~frame.valid] = np.inf
-                near = np.unravel_index(int(np.argmin(dist)), dist.shape)
-                v, u = int(near[0]), int(near[1])
+                v, u = _nearest_pixel(frame, point)
             else:
                 u, v = pixel
                 if not (0 <= u < w and 0 <= v < h):
                     raise ValueError(f"seed pixel {pixel} is outside the {w}x{h} frame")
                 if not frame.valid[v, u]:
                     raise ValueError(f"seed pixel {pixel} is not valid in this frame")
-            seed = frame.xyz[v, u]
-            ball = frame.valid & (
-                np.linalg.norm(frame.xyz - seed, axis=-1) < self.params.seed_radius_m
-            )
-            pieces = self._pieces(frame, ball, self._seed_step(frame, u, v))
-            region = pieces == pieces[v, u] if pieces[v, u] else np.zeros_like(ball)
-            region[v, u] = True
-            pts = frame.xyz[region]
+            pts = frame.xyz[self._region(frame, noise, v, u)]
             born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
         self._seeds.clear()
         return born
 
-    def _seed_step(self, frame: Frame, u: int, v: int) -> float:
-        """The 3D step that splits surfaces around a seed: `connect_m`, or four times the
-        noise of neighbour differences there if that is more (far, noisy targets)."""
-        r = frame.range[
-            max(0, v - SEED_WINDOW) : v + SEED_WINDOW, max(0, u - SEED_WINDOW) : u + SEED_WINDOW
-        ]
-        d = np.abs(np.diff(r, axis=1)).ravel()
-        d = d[np.isfinite(d)]
-        noise = 1.4826 * float(np.median(d)) if d.size else 0.0
-        return max(self.params.connect_m, 4.0 * noise)
+    def _region(self, frame: Frame, noise: F64, v: int, u: int) -> B:
+        """The surface 3D-connected to pixel (u, v) within `seed_radius_m` of it."""
+        ball = frame.valid & (
+            np.linalg.norm(frame.xyz - frame.xyz[v, u], axis=-1) < self.params.seed_radius_m
+        )
+        pieces = self._pieces(frame, ball, noise)
+        region: B = pieces == pieces[v, u] if pieces[v, u] else np.zeros_like(ball)
+        region[v, u] = True
+        return region
+
+    def _grown(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
+        """Labels while the scenery is being learned: each track is the surface connected to
+        the pixel nearest its prediction (a cut needs the scenery; pixels left out of the
+        target now would be learned as scenery)."""
+        labels = np.zeros(frame.shape, np.uint16)
+        for t in self._tracks:
+            region = self._region(frame, noise, *_nearest_pixel(frame, t.filter.position))
+            labels[region & (labels == 0)] = t.id
+        return labels
+
+    def _surfaces(self) -> F64:
+        """(N, 3) every track's predicted surface points."""
+        return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
 
     def _start(self, points: F64, shape: F64) -> int:
         motion = ConstantVelocity(points.mean(axis=0), self.params.motion)
@@ -308,7 +330,7 @@ class Tracker:
             total[b] += wt
         return ties, total
 
-    def _segment(self, frame: Frame) -> npt.NDArray[np.uint16]:
+    def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
         """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
 
         Before the cut, pixels are fixed to the background where no labelling of their
@@ -331,7 +353,7 @@ class Tracker:
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
         first = np.nonzero(free)
-        cost = p.object_cost + p.beta * self._distances(frame.xyz[first])
+        cost = p.object_cost + p.beta * self._distances(frame.xyz[first], noise[first])
         free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
             return labels
@@ -366,12 +388,15 @@ class Tracker:
         labels[where] = ids[chosen]
         return labels
 
-    def _distances(self, points: F64) -> F64:
+    def _distances(self, points: F64, noise: F64) -> F64:
         """(tracks, N) each point's distance cost from each track's prediction: squared
         Mahalanobis distance in the track's shape, plus the squared distance from its
-        predicted surface in units of `surface_sigma_m` (inf beyond any track's reach)."""
+        predicted surface in units of `surface_sigma_m`, or of the noise of the difference
+        between a point and the surface where that is more (`noise`, each point's range
+        noise; inf beyond any track's reach)."""
         p = self.params
-        reach = p.surface_sigma_m * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
+        spread = np.maximum(p.surface_sigma_m, np.sqrt(2.0) * noise)
+        reach = spread.max(initial=0.0) * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         out = np.empty((len(self._tracks), len(points)))
         finite = np.isfinite(points).all(axis=1)
         for k, t in enumerate(self._tracks):
@@ -380,7 +405,7 @@ class Tracker:
             if p.surface_weight > 0:
                 near = np.full(len(points), np.inf)
                 near[finite], _ = cKDTree(t.cloud).query(points[finite], distance_upper_bound=reach)
-                out[k] += p.surface_weight * (near / p.surface_sigma_m) ** 2
+                out[k] += p.surface_weight * (near / spread) ** 2
         return np.where(np.isnan(out), np.inf, out)
 
     # --- measuring tracks and finding new objects ------------------------------------------
@@ -394,16 +419,21 @@ class Tracker:
         body = bg.standing_out(frame) & (labels == 0)
         return self._pieces(frame, body)
 
-    def _pieces(self, frame: Frame, body: B, step_m: float | None = None) -> npt.NDArray[np.int32]:
-        """Connected pieces of `body`, cut where neighbours are farther apart than `step_m`
-        (default `connect_m`) in 3D; the pixel on the far side of such a step is left out."""
-        step = self.params.connect_m if step_m is None else step_m
+    def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
+        """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
+        `connect_m`, or, given the range noise, than three times the noise of their
+        difference where that is more (a seed on a far, dark target); the pixel on the far
+        side of such a step is left out."""
         h, w = frame.shape
         body = body.copy()
         xyz = frame.xyz
+        step2 = self.params.connect_m**2
         for dv, du in ((0, 1), (1, 0)):
             a, b = _shifted(h, w, dv, du)
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > step**2
+            allowed = (
+                step2 if noise is None else np.maximum(step2, 9 * (noise[a] ** 2 + noise[b] ** 2))
+            )
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
             far_a = jump & (frame.range[a] > frame.range[b])
             far_b = jump & ~far_a
             body[a] &= ~far_a
@@ -412,13 +442,15 @@ class Tracker:
         return np.asarray(pieces, np.int32)
 
     def _measure(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float
+        self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
     ) -> tuple[list[int], list[int]]:
         """Update every track from its mask, and look for new objects; (born, ended) ids."""
         p = self.params
         ended: list[int] = []
         keep: list[_Live] = []
-        pieces = self._loose(frame, labels) if self.background and self.background.ready else None
+        born = self._reconcile(frame, labels)
+        ready = self.background is not None and self.background.ready
+        pieces = self._loose(frame, labels) if ready else None
         for t in self._tracks:
             mask = labels == t.id
             n = int(mask.sum())
@@ -442,21 +474,16 @@ class Tracker:
                 whole = p.whole_fraction * usual <= m and (
                     entering or m * p.whole_fraction <= usual
                 )
-                t.measured = usual == 0 or whole
+                # without a belt, objects need not be rigid: a person's every view is whole
+                t.measured = usual == 0 or whole or self.belt is None
                 if t.measured:
                     t.filter.correct(pts.mean(axis=0))
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
-                pts = frame.xyz[mask]
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                rows, cols = np.nonzero(mask)
-                bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
-                t.last = Track(
-                    t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
-                    bbox, n, pts.astype(np.float32),
-                )  # fmt: skip
+                t.last = _seen(t, frame, mask)
             else:
                 labels[mask] = 0
                 t.measured = False
@@ -472,8 +499,67 @@ class Tracker:
                 )  # fmt: skip
             keep.append(t)
         self._tracks = keep
-        born = [] if pieces is None else self._detect(frame, pieces)
+        if pieces is not None:
+            born += self._detect(frame, pieces, labels, noise)
         return born, ended
+
+    def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> list[int]:
+        """Deal the surfaces out again where a track has held two for `split_frames` frames
+        (two objects that came into view together, taken as one, or split along the wrong
+        line): each surface goes whole to one of the tracks holding it, most pixels kept in
+        place; a surface left over is a new track. Changes `labels`; the new tracks' ids."""
+        p = self.params
+        if self.belt is None or not self._tracks:
+            return []  # objects on a belt are rigid; a person's limbs are not other people
+        pieces = self._pieces(frame, labels > 0)
+        n_pieces = int(pieces.max()) + 1
+        row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
+        for k, t in enumerate(self._tracks):
+            row[t.id] = k + 1
+        held = np.bincount(
+            row[labels].ravel() * n_pieces + pieces.ravel(),
+            minlength=(len(self._tracks) + 1) * n_pieces,
+        ).reshape(-1, n_pieces)[1:]
+        held[:, 0] = 0
+        size = held.sum(axis=1)
+        big = (held >= p.min_pixels) & (held >= p.split_share * size[:, None])
+        splitting = []
+        for k, t in enumerate(self._tracks):
+            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0])
+            t.split_frames = t.split_frames + 1 if two else 0
+            if t.split_frames >= p.split_frames:
+                splitting.append(k)
+        if not splitting:
+            return []
+        surfaces = np.nonzero(big[splitting].any(axis=0))[0]
+        involved = np.nonzero((held[:, surfaces] >= p.min_pixels).any(axis=1))[0]
+        rows, cols = linear_sum_assignment(held[np.ix_(involved, surfaces)], maximize=True)
+        owner = dict(zip(surfaces[cols].tolist(), involved[rows].tolist(), strict=True))
+        # the surfaces' pixels are dealt out anew; elsewhere the cut's labels stand
+        dealt = np.isin(pieces, surfaces)
+        labels[dealt] = 0
+        born = []
+        for r in surfaces.tolist():
+            surface = pieces == r
+            if r in owner:
+                labels[surface] = self._tracks[owner[r]].id
+            else:
+                pts = frame.xyz[surface]
+                labels[surface] = self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt))
+                born.append(int(labels[surface][0]))
+        for k in involved.tolist():
+            t = self._tracks[k]
+            t.split_frames = 0
+            pts = frame.xyz[labels == t.id]
+            if len(pts) < p.min_pixels:
+                continue
+            # what it holds now is a new view of it: its state starts again from this view
+            velocity = t.filter.velocity
+            t.filter = ConstantVelocity(pts.mean(axis=0), p.motion, velocity)
+            t.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
+            t.cloud = _subsample(pts, p.cloud_points)
+            t.usual_pixels = 0.0
+        return born
 
     def _in_view(self, frame: Frame, t: _Live) -> bool:
         """Whether the predicted centroid still falls on the sensor."""
@@ -507,7 +593,13 @@ class Tracker:
         out: npt.NDArray[np.int32] = near[np.array(keep, bool)]
         return out
 
-    def _detect(self, frame: Frame, pieces: npt.NDArray[np.int32]) -> list[int]:
+    def _detect(
+        self,
+        frame: Frame,
+        pieces: npt.NDArray[np.int32],
+        labels: npt.NDArray[np.uint16],
+        noise: F64,
+    ) -> list[int]:
         """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
         row (within `gate_m`), a track. A piece most of which a track could claim is a
         fringe of that track, not a new object."""
@@ -518,14 +610,15 @@ class Tracker:
         for r in np.nonzero(sizes >= p.min_pixels)[0]:
             if r == 0:
                 continue
-            pts = frame.xyz[pieces == r]
+            piece = pieces == r
+            pts = frame.xyz[piece]
             centroid = pts.mean(axis=0)
-            if self._tracks and np.median(self._distances(pts).min(axis=0)) < claim:
+            if self._tracks and np.median(self._distances(pts, noise[piece]).min(axis=0)) < claim:
                 continue
-            found.append((centroid, pts))
+            found.append((centroid, pts, piece))
         born = []
         next_candidates = []
-        for centroid, pts in found:
+        for centroid, pts, piece in found:
             match = None
             for c in self._candidates:
                 if np.linalg.norm(c.centroid - centroid) < p.gate_m:
@@ -539,10 +632,43 @@ class Tracker:
             match.centroid = centroid
             if match.seen >= p.confirm_frames:
                 born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
+                t = self._tracks[-1]
+                labels[piece] = t.id
+                t.usual_pixels = float(len(pts))
+                t.last = _seen(t, frame, piece)
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
         return born
+
+
+def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
+    """(v, u) of the valid pixel whose 3D point is nearest `point`."""
+    dist = np.linalg.norm(frame.xyz - point, axis=-1)
+    dist[~frame.valid] = np.inf
+    v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
+    return int(v), int(u)
+
+
+def _seen(t: _Live, frame: Frame, mask: B) -> Track:
+    """What is reported of a track seen in `mask` this frame."""
+    pts = frame.xyz[mask]
+    rows, cols = np.nonzero(mask)
+    bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
+    return Track(
+        t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
+        bbox, len(pts), pts.astype(np.float32),
+    )  # fmt: skip
+
+
+def _touching(pieces: npt.NDArray[np.int32], surfaces: I64) -> bool:
+    """Whether the largest of these pieces touches another of them (across the one-pixel
+    seam a 3D step leaves): two objects side by side, not one seen either side of an
+    occluder."""
+    sizes = np.bincount(pieces.ravel())
+    first = surfaces[np.argmax(sizes[surfaces])]
+    ring = ndimage.binary_dilation(pieces == first, _EIGHT, iterations=2)
+    return bool(np.isin(pieces[ring], surfaces[surfaces != first]).any())
 
 
 def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
