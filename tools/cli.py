@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
 from tofcut import __version__
 from tofcut.driver.errors import TofcutError
+
+# Recordings are written without rerun's footer (`tools.rerun_target` says why), and rerun
+# warns of that for every file it opens: quiet that one warning before rerun is imported
+# (the user's own RUST_LOG wins).
+os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
 
 COMMANDS = [
     "tofcut.tools.cmd_devices",
