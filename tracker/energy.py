@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -27,6 +28,11 @@ BOOL = npt.NDArray[np.bool_]
 
 OFFSETS: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (1, 1), (1, -1))
 """(dv, du) of the four forward 8-neighbour directions: east, south, south-east, south-west."""
+
+DIRECTIONS: tuple[tuple[int, int], ...] = OFFSETS + tuple((-dv, -du) for dv, du in OFFSETS)
+"""All 8 neighbour directions: OFFSETS (forward), then their opposites (backward)."""
+DV = np.array([dv for dv, _ in DIRECTIONS], dtype=np.int64)
+DU = np.array([du for _, du in DIRECTIONS], dtype=np.int64)
 
 DIAGONAL = (False, False, True, True)
 """Which of OFFSETS are diagonal (their pixel centres are √2 apart)."""
@@ -48,6 +54,20 @@ def pair_slices(shape: tuple[int, int], k: int) -> tuple[Region, Region]:
     else:
         cols_p, cols_q = slice(-du, w), slice(0, w + du)
     return (rows_p, cols_p), (rows_q, cols_q)
+
+
+@numba.njit(cache=True, inline="always")
+def edge_weight(weights: F64, v: int, u: int, k: int) -> float:
+    """Weight of the edge from pixel (v, u) of a (4, H, W) `weights` along DIRECTIONS[k]:
+    a forward one is stored at the pixel, a backward one at the neighbour; 0 off the grid
+    (whatever `weights` holds there, so a window cut out of a frame is a grid of its own)."""
+    _, h, w = weights.shape
+    qv, qu = v + DV[k], u + DU[k]
+    if qv < 0 or qv >= h or qu < 0 or qu >= w:
+        return 0.0
+    if k < len(OFFSETS):
+        return float(weights[k, v, u])
+    return float(weights[k - len(OFFSETS), qv, qu])
 
 
 def energy_of(labels: BOOL, cost1: F64, cost0: F64, weights: F64) -> float:
