@@ -102,10 +102,32 @@ def intensity_costs(grey: F64, valid: BOOL, mu_t: float, mu_b: float) -> tuple[F
     return cost1, cost0
 
 
+@numba.njit(cache=True)
 def range_penalty(xyz: F64, valid: BOOL, mu_d: F64, beta: float) -> F64:
     """Eq. (6)'s extra target cost β‖D_p − µd‖² (D_p the pixel's 3D point), zero at invalid."""
-    d2 = ((xyz - mu_d) ** 2).sum(axis=-1)
-    return np.where(valid, beta * d2, 0.0)
+    h, w = valid.shape
+    out = np.zeros((h, w))
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u]:
+                out[v, u] = beta * _squared_distance(xyz, v, u, mu_d)
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _squared_distance(xyz: F64, v: int, u: int, point: F64) -> float:
+    """‖xyz[v, u] − point‖², summed x, y, z in that order."""
+    dx, dy, dz = xyz[v, u, 0] - point[0], xyz[v, u, 1] - point[1], xyz[v, u, 2] - point[2]
+    return float(dx * dx + dy * dy + dz * dz)
+
+
+@numba.njit(cache=True, inline="always")
+def _pair_distance(xyz: F64, v: int, u: int, qv: int, qu: int) -> float:
+    """‖xyz[v, u] − xyz[qv, qu]‖², summed x, y, z in that order."""
+    dx = xyz[v, u, 0] - xyz[qv, qu, 0]
+    dy = xyz[v, u, 1] - xyz[qv, qu, 1]
+    dz = xyz[v, u, 2] - xyz[qv, qu, 2]
+    return float(dx * dx + dy * dy + dz * dz)
 
 
 def image_penalty(valid: BOOL, centre: tuple[float, float], beta: float) -> F64:
@@ -159,16 +181,43 @@ def range_weights(
     """
     if (grey is None) != (sigma_i is None):
         raise ValueError("give both grey and sigma_i, or neither")
-    weights = np.zeros((len(OFFSETS), *valid.shape))
-    for k in range(len(OFFSETS)):
-        sp, sq = pair_slices(valid.shape, k)
-        d2 = ((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1)
-        exponent = (d2 if squared else np.sqrt(d2)) / (-2.0 * sigma_s**2)
-        if grey is not None and sigma_i is not None:
-            exponent -= (grey[sp] - grey[sq]) ** 2 / (2.0 * sigma_i**2)
-        both = valid[sp] & valid[sq]
-        weights[k][sp] = np.where(both, np.exp(np.where(both, exponent, 0.0)), 0.0)
+    # the exponents (−inf where there is no edge) compiled, their exp by numpy's vector loop
+    exponents = _range_exponents(
+        xyz,
+        valid,
+        -2.0 * sigma_s**2,
+        np.zeros(valid.shape) if grey is None else grey,  # a zero step: no intensity term
+        0.0 if sigma_i is None else 2.0 * sigma_i**2,
+        squared,
+    )
+    weights: F64 = np.exp(exponents, out=exponents)
     return weights
+
+
+@numba.njit(cache=True)
+def _range_exponents(
+    xyz: F64, valid: BOOL, scale_s: float, grey: F64, scale_i: float, squared: bool
+) -> F64:
+    """(4, H, W) exponents of `range_weights`: D(p, q)/scale_s − (g_p − g_q)²/scale_i (the
+    intensity term left out when scale_i is 0), −inf where an edge has an invalid pixel or
+    leaves the frame. Divided as products with the reciprocals (a division per edge would
+    take most of the time; the exponents move by an ulp)."""
+    h, w = valid.shape
+    inv_s = 1.0 / scale_s
+    inv_i = 1.0 / scale_i if scale_i != 0.0 else 0.0
+    out = np.empty((len(OFFSETS), h, w))
+    for k in range(len(OFFSETS)):
+        dv, du = DV[k], DU[k]
+        for v in range(h):
+            for u in range(w):
+                qv, qu = v + dv, u + du
+                if qv >= h or qu < 0 or qu >= w or not (valid[v, u] and valid[qv, qu]):
+                    out[k, v, u] = -np.inf
+                    continue
+                d2 = _pair_distance(xyz, v, u, qv, qu)
+                step = grey[v, u] - grey[qv, qu]
+                out[k, v, u] = (d2 if squared else math.sqrt(d2)) * inv_s - step * step * inv_i
+    return out
 
 
 # --- estimating the model from the frame ------------------------------------------------------
@@ -193,40 +242,148 @@ def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: 
 def background_intensity(grey: F64, valid: BOOL, xyz: F64, mu_d: F64, margin_m: float) -> float:
     """µb: median grey level of the valid pixels farther than `margin_m` from µd, or from
     every row of a (K, 3) array of µd (all valid pixels if none is that far)."""
-    points = np.atleast_2d(mu_d)
-    d2 = ((xyz[..., None, :] - points) ** 2).sum(axis=-1)
-    far = valid & (d2 > margin_m**2).all(axis=-1)
-    pick = far if far.any() else valid
-    return float(np.median(grey[pick]))
+    return float(_background_intensity(grey, valid, xyz, np.atleast_2d(mu_d), margin_m**2))
+
+
+@numba.njit(cache=True)
+def _background_intensity(grey: F64, valid: BOOL, xyz: F64, points: F64, limit: float) -> float:
+    h, w = valid.shape
+    far = np.zeros((h, w), dtype=np.bool_)
+    count = 0
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u]:
+                far[v, u] = True
+                for i in range(points.shape[0]):
+                    if not _squared_distance(xyz, v, u, points[i]) > limit:
+                        far[v, u] = False
+                        break
+                count += far[v, u]
+    pick = far if count else valid
+    return median(grey.ravel()[pick.ravel()])
 
 
 def nearest_pixel(xyz: F64, valid: BOOL, point: F64) -> tuple[int, int]:
     """(u, v) of the valid pixel whose ray passes closest to a 3D point (its image position)."""
-    norm = np.linalg.norm(xyz, axis=-1)
-    cosine = (xyz @ point) / np.maximum(norm * float(np.linalg.norm(point)), 1e-12)
-    cosine = np.where(valid & (norm > 0), cosine, -np.inf)
-    v, u = np.unravel_index(int(np.argmax(cosine)), cosine.shape)
+    v, u = _nearest_pixel(xyz, valid, point, float(np.linalg.norm(point)))
     return int(u), int(v)
 
 
+@numba.njit(cache=True)
+def _nearest_pixel(xyz: F64, valid: BOOL, point: F64, point_norm: float) -> tuple[int, int]:
+    """(v, u) of the largest cosine between the pixel's point and `point` (first if equal)."""
+    h, w = valid.shape
+    best, at_v, at_u = -np.inf, 0, 0
+    for v in range(h):
+        for u in range(w):
+            x, y, z = xyz[v, u, 0], xyz[v, u, 1], xyz[v, u, 2]
+            norm = math.sqrt(x * x + y * y + z * z)
+            if not (valid[v, u] and norm > 0.0):
+                continue
+            dot = x * point[0] + y * point[1] + z * point[2]
+            cosine = dot / max(norm * point_norm, 1e-12)
+            if cosine > best:
+                best, at_v, at_u = cosine, v, u
+    return at_v, at_u
+
+
+@numba.njit(cache=True)
 def neighbour_distance(xyz: F64, valid: BOOL) -> float:
     """Median 3D distance between valid horizontal and vertical neighbours: the frame's scale
     of "the same surface" (pixel footprint plus range noise)."""
-    steps = []
+    h, w = valid.shape
+    steps = np.empty(2 * h * w)
+    n = 0
     for k in (0, 1):
-        sp, sq = pair_slices(valid.shape, k)
-        both = valid[sp] & valid[sq]
-        steps.append(np.sqrt(((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1))[both])
-    joined = np.concatenate(steps)
-    return float(np.median(joined)) if joined.size else 0.0
+        dv, du = DV[k], DU[k]
+        for v in range(h - dv):
+            for u in range(w - du):
+                if valid[v, u] and valid[v + dv, u + du]:
+                    steps[n] = _pair_distance(xyz, v, u, v + dv, u + du)
+                    n += 1
+    if not n:
+        return 0.0
+    # the middle distances are the square roots of the middle squared distances
+    a, b = middle(steps[:n])
+    return math.sqrt(a) if n % 2 else (math.sqrt(a) + math.sqrt(b)) / 2.0
 
 
+@numba.njit(cache=True)
 def neighbour_step(grey: F64, valid: BOOL) -> float:
     """Median |g_p − g_q| between valid horizontal and vertical neighbours, grey levels."""
-    steps = []
+    h, w = valid.shape
+    steps = np.empty(2 * h * w)
+    n = 0
     for k in (0, 1):
-        sp, sq = pair_slices(valid.shape, k)
-        both = valid[sp] & valid[sq]
-        steps.append(np.abs(grey[sp] - grey[sq])[both])
-    joined = np.concatenate(steps)
-    return float(np.median(joined)) if joined.size else 0.0
+        dv, du = DV[k], DU[k]
+        for v in range(h - dv):
+            for u in range(w - du):
+                if valid[v, u] and valid[v + dv, u + du]:
+                    steps[n] = abs(grey[v, u] - grey[v + dv, u + du])
+                    n += 1
+    return median(steps[:n]) if n else 0.0
+
+
+# --- an exact median in two passes -------------------------------------------------------------
+
+MEDIAN_BINS = 4096
+"""Bins of `kth_smallest`'s histogram: the values in one bin are all it sorts."""
+
+
+MEDIAN_SORT = 256
+"""`_middle` sorts what is left once it is this few values."""
+
+
+@numba.njit(cache=True)
+def _middle(values: F64, lo: float, hi: float) -> tuple[float, float]:
+    """The two middle values of the sorted `values` (the same one twice if their number is
+    odd), all finite in [lo, hi], exactly: a histogram finds the bins they fall in (the
+    binning is monotone), the values in those bins are kept, and so on until few are left."""
+    k0, k1 = (values.size - 1) // 2, values.size // 2
+    kept = values
+    while lo < hi:
+        scale = MEDIAN_BINS / (hi - lo)
+        counts = np.zeros(MEDIAN_BINS, dtype=np.int64)
+        for x in kept:
+            counts[min(int((x - lo) * scale), MEDIAN_BINS - 1)] += 1
+        below, first = 0, 0
+        while below + counts[first] <= k0:
+            below += counts[first]
+            first += 1
+        last, upto = first, below + counts[first]
+        while upto <= k1:
+            last += 1
+            upto += counts[last]
+        picked = np.empty(upto - below)
+        at = 0
+        for x in kept:
+            if first <= min(int((x - lo) * scale), MEDIAN_BINS - 1) <= last:
+                picked[at] = x
+                at += 1
+        k0, k1 = k0 - below, k1 - below
+        if picked.size <= MEDIAN_SORT or picked.size == kept.size:
+            picked.sort()
+            return float(picked[k0]), float(picked[k1])
+        kept, lo, hi = picked, picked.min(), picked.max()
+    return lo, lo
+
+
+@numba.njit(cache=True)
+def middle(values: F64) -> tuple[float, float]:
+    """The two middle values of the sorted non-empty `values` (the same one twice if their
+    number is odd; NaN if one is NaN), by exact selection (`_middle`) when all are finite."""
+    n = values.size
+    lo, hi = values.min(), values.max()
+    if np.isnan(lo) or np.isnan(hi):
+        return np.nan, np.nan
+    if np.isinf(lo) or np.isinf(hi):
+        ordered = np.sort(values)
+        return float(ordered[(n - 1) // 2]), float(ordered[n // 2])
+    return _middle(values, lo, hi)
+
+
+@numba.njit(cache=True)
+def median(values: F64) -> float:
+    """np.median of a non-empty array, bit for bit: the middle value, or the mean of the two."""
+    a, b = middle(values)
+    return a if values.size % 2 else (a + b) / 2.0

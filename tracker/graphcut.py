@@ -113,7 +113,10 @@ def solve_reduced(problem: Problem) -> Solution:
     """
     h, w = problem.shape
     labels, pixels, cost1, cost0, heads, tails, caps = _reduce(
-        problem.cost1, problem.cost0, problem.weights, int(FULL_GRAPH_SHARE * h * w)
+        problem.cost1,
+        problem.cost0,
+        np.ascontiguousarray(problem.weights),
+        int(FULL_GRAPH_SHARE * h * w),
     )
     if pixels.size > FULL_GRAPH_SHARE * h * w:
         return solve_reference(problem)
@@ -209,25 +212,33 @@ def _reduce(
     nbr = np.empty((count, len(DIRECTIONS)), dtype=np.int64)
     wts = np.empty((count, len(DIRECTIONS)))
     d = np.empty(count)
-    slack = np.zeros(count)
+    slack = np.empty(count)
     place = np.empty(h * w, dtype=np.int64)  # read only at free pixels
+    flat_weights = weights.reshape(-1)
+    step = DV * w + DU  # flat offset to the neighbour
+    at = np.empty(len(DIRECTIONS), dtype=np.int64)  # flat offset to the edge's weight
+    for k in range(len(DIRECTIONS)):
+        kk = k % len(OFFSETS)
+        at[k] = kk * h * w if k < len(OFFSETS) else kk * h * w - step[kk]
     for i in range(count):
         p = pixels[i]
         v, u = p // w, p % w
         place[p] = i
-        d[i] = float(cost1[v, u]) - float(cost0[v, u])
+        inner = 0 < v < h - 1 and 0 < u < w - 1
+        di, si = float(cost1[v, u]) - float(cost0[v, u]), 0.0
         for k in range(len(DIRECTIONS)):
-            wt = edge_weight(weights, v, u, k)
-            q = p + DV[k] * w + DU[k] if wt != 0.0 else p
+            wt = flat_weights[p + at[k]] if inner else edge_weight(weights, v, u, k)
+            q = p + step[k] if wt != 0.0 else p
             wts[i, k], nbr[i, k] = wt, q
             if wt == 0.0:
                 continue
             if free[q]:
-                slack[i] += wt
+                si += wt
             elif labels[q]:
-                d[i] -= wt
+                di -= wt
             else:
-                d[i] += wt
+                di += wt
+        d[i], slack[i] = di, si
     # fix every free pixel whose δ beats its slack, and update its free neighbours
     stack = np.empty(count, dtype=np.int64)
     for i in range(count):
