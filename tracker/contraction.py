@@ -66,6 +66,26 @@ def _pair_bound(weights: F64, v: int, u: int, slot: int, limit: float) -> float:
     """The lower bound of `cut_lower_bounds` for the pair of (v, u) along OFFSETS[AXIAL[slot]]
     (0 if the neighbour is off the grid), or the direct edge alone once that exceeds `limit`
     (the sum can only be larger)."""
+    _, h, w = weights.shape
+    if slot == 0 and 0 < v < h - 1 and u < w - 1:  # east, every common neighbour in the grid
+        direct = weights[0, v, u]
+        if direct > limit:
+            return float(direct)
+        paths = min(weights[1, v, u], weights[3, v, u + 1])
+        paths += min(weights[2, v, u], weights[1, v, u + 1])
+        paths += min(weights[1, v - 1, u], weights[2, v - 1, u])
+        paths += min(weights[3, v - 1, u + 1], weights[1, v - 1, u + 1])
+        return float(paths + direct)
+    if slot == 1 and v < h - 1 and 0 < u < w - 1:  # south, likewise
+        direct = weights[1, v, u]
+        if direct > limit:
+            return float(direct)
+        paths = min(weights[0, v, u], weights[3, v, u + 1])
+        paths += min(weights[2, v, u], weights[0, v + 1, u])
+        paths += min(weights[3, v, u], weights[0, v + 1, u - 1])
+        paths += min(weights[0, v, u - 1], weights[2, v, u - 1])
+        return float(paths + direct)
+    # near the border: the same sum (in the order of COMMONS), edges off the grid weigh 0
     k = AXIAL[slot]
     direct = edge_weight(weights, v, u, k)
     if direct > limit:

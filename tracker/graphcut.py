@@ -303,47 +303,63 @@ def solve_cropped(problem: Problem, centre: tuple[int, int], half_size: int = 24
     side that borders the rest of the frame: a target holding them would touch that side,
     and an empty one is found by the larger window as well."""
     h, w = problem.shape
-    rows, cols = np.divmod(np.flatnonzero(problem.cost0 > problem.cost1), w)
     u, v = centre
-    v0 = max(min(v, int(rows.min(initial=v))) - half_size, 0)
-    v1 = min(max(v, int(rows.max(initial=v))) + half_size + 1, h)
-    u0 = max(min(u, int(cols.min(initial=u))) - half_size, 0)
-    u1 = min(max(u, int(cols.max(initial=u))) + half_size + 1, w)
+    v0, v1, u0, u1 = _preferring_target(problem.cost1, problem.cost0, v, u)
+    v0, v1 = max(v0 - half_size, 0), min(v1 + half_size + 1, h)
+    u0, u1 = max(u0 - half_size, 0), min(u1 + half_size + 1, w)
     nodes = 0
     while True:
         window = (slice(v0, v1), slice(u0, u1))
         cost1, cost0 = problem.cost1[window], problem.cost0[window]
         weights = problem.weights[(slice(None), *window)]
         count, node = merged_nodes(cost1, cost0, weights)
-        inner = node == node[v - v0, u - u0]
-        if not _touched_sides(inner, (v0, v1, u0, u1), (h, w)):
+        grow, *bounds = _grown(node, node[v - v0, u - u0], v0, v1, u0, u1, h, w)
+        if not grow:
             inner = cut_merged(cost1, cost0, weights, count, node)
             nodes += count
-        grow = _touched_sides(inner, (v0, v1, u0, u1), (h, w))
-        if not grow:
-            labels = np.zeros((h, w), dtype=bool)
-            labels[window] = inner
-            return Solution(labels, nodes)
-        grow_up, grow_down, grow_left, grow_right = (side in grow for side in "udlr")
-        dv, du = v1 - v0, u1 - u0
-        v0 = max(v0 - dv, 0) if grow_up else v0
-        v1 = min(v1 + dv, h) if grow_down else v1
-        u0 = max(u0 - du, 0) if grow_left else u0
-        u1 = min(u1 + du, w) if grow_right else u1
+            grow, *bounds = _grown(inner, True, v0, v1, u0, u1, h, w)
+            if not grow:
+                labels = np.zeros((h, w), dtype=bool)
+                labels[window] = inner
+                return Solution(labels, nodes)
+        v0, v1, u0, u1 = bounds
 
 
-def _touched_sides(inner: BOOL, bounds: tuple[int, int, int, int], shape: tuple[int, int]) -> str:
-    """The sides of the window (u)p, (d)own, (l)eft, (r)ight that `inner` reaches and that
-    border the rest of the frame."""
-    v0, v1, u0, u1 = bounds
-    h, w = shape
-    return "".join(
-        side
-        for side, reached in (
-            ("u", v0 > 0 and bool(inner[0].any())),
-            ("d", v1 < h and bool(inner[-1].any())),
-            ("l", u0 > 0 and bool(inner[:, 0].any())),
-            ("r", u1 < w and bool(inner[:, -1].any())),
-        )
-        if reached
+@numba.njit(cache=True)
+def _preferring_target(cost1: F64, cost0: F64, v: int, u: int) -> tuple[int, int, int, int]:
+    """(v0, v1, u0, u1), inclusive: the bounding box of (v, u) and every pixel whose unary
+    cost prefers the target (cost0 > cost1)."""
+    v0, v1, u0, u1 = v, v, u, u
+    for r in range(cost1.shape[0]):
+        for c in range(cost1.shape[1]):
+            if cost0[r, c] > cost1[r, c]:
+                v0, v1, u0, u1 = min(v0, r), max(v1, r), min(u0, c), max(u1, c)
+    return v0, v1, u0, u1
+
+
+@numba.njit(cache=True)
+def _grown(
+    marked: npt.NDArray[np.generic],
+    value: object,
+    v0: int,
+    v1: int,
+    u0: int,
+    u1: int,
+    h: int,
+    w: int,
+) -> tuple[bool, int, int, int, int]:
+    """(grew, v0, v1, u0, u1): the window [v0, v1) × [u0, u1) of an H×W frame pushed out by
+    its own height or width on every side where `marked == value` reaches the window's edge
+    and the window does not already reach the frame's."""
+    rows, cols = v1 - v0, u1 - u0
+    up = v0 > 0 and (marked[0] == value).any()
+    down = v1 < h and (marked[rows - 1] == value).any()
+    left = u0 > 0 and (marked[:, 0] == value).any()
+    right = u1 < w and (marked[:, cols - 1] == value).any()
+    return (
+        up or down or left or right,
+        max(v0 - rows, 0) if up else v0,
+        min(v1 + rows, h) if down else v1,
+        max(u0 - cols, 0) if left else u0,
+        min(u1 + cols, w) if right else u1,
     )
