@@ -72,6 +72,23 @@ def test_cropped_solver_equals_the_reference_on_random_seeded_problems(seed):
     assert_same_minimum(problem, fast.labels, ref.labels)
 
 
+@pytest.mark.parametrize("seed", range(10))
+def test_fast_solvers_take_windows_of_larger_arrays(seed):
+    # strided views (as `solve_cropped` and callers cutting a region pass them), with the
+    # weights of the edges leaving the window left in: both solvers must ignore those
+    rng = np.random.default_rng(6000 + seed)
+    big = random_problem(rng, 30, 40)
+    window = (slice(3, 27, 2), slice(5, 36))
+    problem = Problem(big.cost1[window], big.cost0[window], big.weights[(slice(None), *window)])
+    ref = solve_reference(problem)
+    assert np.array_equal(solve_reduced(problem).labels, ref.labels)
+    seeded, pixel = seeded_problem(rng, 30, 40)
+    cut = Problem(seeded.cost1[:, 5:], seeded.cost0[:, 5:], seeded.weights[:, :, 5:])
+    centre = (max(pixel[0] - 5, 0), pixel[1])
+    cut = Problem(*seed_costs(cut.shape, centre), cut.weights)
+    assert_same_minimum(cut, solve_cropped(cut, centre, 2).labels, solve_reference(cut).labels)
+
+
 def assert_same_minimum(problem: Problem, fast: np.ndarray, ref: np.ndarray) -> None:
     """Equal labels, except in §4.2's one exact tie: when no region beats 1, all-background
     and all-target both cost exactly 1 (Σ 1/n), and rounding picks one."""

@@ -8,12 +8,14 @@ no minimum separates them, and merging them into one node (terminal capacities a
 summed) leaves exactly the same set of minima.
 
 The weight of every p–q cut is bounded from below by edge-disjoint paths (Menger): the
-direct edge plus, through each common 8-neighbour c, min(w(p, c), w(c, q)). Computed for
-every east and south pair of the grid in a few dozen array operations; merged pixels are
-the connected components of the pairs whose bound exceeds the slack (diagonal pairs are not
-merged directly: fewer merges, never a wrong one).
+direct edge plus, through each common 8-neighbour c, min(w(p, c), w(c, q)). Merged pixels
+are the connected components of the east and south pairs whose bound exceeds the slack
+(diagonal pairs are not merged directly: fewer merges, never a wrong one), found in one
+compiled raster scan with union-find; the bound's paths are only summed where the direct
+edge alone does not already exceed the slack.
 
-For the §4.2 energy (1/n to the background, the seed's link 1) the slack is 1 − 1/n, and
+For the §4.2 energy (1/n to the background, the seed's link 1) the slack of a window of m
+pixels is (m − 1)/n, at most 1 − 1/n, and
 the edges inside a smooth surface (weights near exp(−1/2) with σs at the neighbour step) have
 bounds of 2 or more: a whole surface becomes one node, and the max-flow no longer has to
 push 1/n of flow to each of its pixels one by one.
