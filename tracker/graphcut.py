@@ -207,9 +207,9 @@ def _reduce(
     empty_f, empty_i = np.empty(0), np.empty(0, dtype=np.int64)
     if count > max_free:
         return labels2, pixels, empty_f, empty_f, empty_i, empty_i, empty_f
-    # each free pixel's 8 neighbours (flat; the pixel itself where there is no edge), edge
-    # weights, δ with its fixed neighbours' edges folded in, and the weight to free ones
-    nbr = np.empty((count, len(DIRECTIONS)), dtype=np.int64)
+    # each free pixel's edge weights to its 8 neighbours (flat index p + step[k]; 0 where
+    # there is no edge), δ with its fixed neighbours' edges folded in, and the weight of its
+    # edges to free ones
     wts = np.empty((count, len(DIRECTIONS)))
     d = np.empty(count)
     slack = np.empty(count)
@@ -228,10 +228,10 @@ def _reduce(
         di, si = float(cost1[v, u]) - float(cost0[v, u]), 0.0
         for k in range(len(DIRECTIONS)):
             wt = flat_weights[p + at[k]] if inner else edge_weight(weights, v, u, k)
-            q = p + step[k] if wt != 0.0 else p
-            wts[i, k], nbr[i, k] = wt, q
+            wts[i, k] = wt
             if wt == 0.0:
                 continue
+            q = p + step[k]
             if free[q]:
                 si += wt
             elif labels[q]:
@@ -251,10 +251,10 @@ def _reduce(
             j = stack[top]
             target = labels[pixels[j]]
             for k in range(len(DIRECTIONS)):
-                q = nbr[j, k]
-                if not free[q]:
+                wt, q = wts[j, k], pixels[j] + step[k]
+                if wt == 0.0 or not free[q]:
                     continue
-                iq, wt = place[q], wts[j, k]
+                iq = place[q]
                 slack[iq] -= wt
                 d[iq] += -wt if target else wt
                 if abs(d[iq]) > slack[iq]:
@@ -281,7 +281,7 @@ def _reduce(
         out[a] = p
         c1, c0 = float(cost1.flat[p]), float(cost0.flat[p])
         for k in range(len(DIRECTIONS)):
-            wt, q = wts[i, k], nbr[i, k]
+            wt, q = wts[i, k], p + step[k]
             if wt == 0.0:
                 continue
             if free[q]:
