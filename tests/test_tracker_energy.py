@@ -154,3 +154,25 @@ def test_median_is_numpys_bit_for_bit(n):
     assert en.median(with_inf) == np.median(with_inf)
     with_inf[n // 2] = np.nan
     assert np.isnan(en.median(with_inf))
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 99, 100, 101, 2000, 30001])
+def test_percentile_is_numpys_bit_for_bit(n):
+    rng = np.random.default_rng(100 + n)
+    cases = [
+        rng.random(n),
+        rng.random(n) ** 12,
+        np.exp(rng.normal(size=n) * 30),
+        rng.integers(0, 3, n).astype(float),
+    ]
+    for values in cases:
+        for q in (0.0, 37.3, 50.0, en.GREY_PERCENTILE, 100.0):
+            assert en.percentile(values, q) == np.percentile(values, q)
+
+
+def test_intensity_costs_match_numpy():
+    rng = np.random.default_rng(8)
+    grey, valid = rng.random((13, 17)) * 255, rng.random((13, 17)) < 0.7
+    cost1, cost0 = en.intensity_costs(grey, valid, 200.0, 40.0)
+    assert np.array_equal(cost1, np.where(valid, (grey - 200.0) ** 2, 0.0))
+    assert np.array_equal(cost0, np.where(valid, (grey - 40.0) ** 2, 0.0))

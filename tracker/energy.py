@@ -91,14 +91,20 @@ def grey_levels(intensity: F64, valid: BOOL, reference: float | None = None) -> 
 def intensity_reference(intensity: F64, valid: BOOL) -> float:
     """I_ref: the 99th percentile of the valid intensity (1.0 if there is none above 0)."""
     values = intensity[valid]
-    ref = float(np.percentile(values, GREY_PERCENTILE)) if values.size else 0.0
+    ref = percentile(values, GREY_PERCENTILE) if values.size else 0.0
     return ref if ref > 0.0 else 1.0
 
 
+@numba.njit(cache=True)
 def intensity_costs(grey: F64, valid: BOOL, mu_t: float, mu_b: float) -> tuple[F64, F64]:
     """Eq. (5): (cost1, cost0) = ((g − µt)², (g − µb)²), zero at invalid pixels."""
-    cost1 = np.where(valid, (grey - mu_t) ** 2, 0.0)
-    cost0 = np.where(valid, (grey - mu_b) ** 2, 0.0)
+    h, w = valid.shape
+    cost1, cost0 = np.zeros((h, w)), np.zeros((h, w))
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u]:
+                to_t, to_b = grey[v, u] - mu_t, grey[v, u] - mu_b
+                cost1[v, u], cost0[v, u] = to_t * to_t, to_b * to_b
     return cost1, cost0
 
 
@@ -324,22 +330,19 @@ def neighbour_step(grey: F64, valid: BOOL) -> float:
     return median(steps[:n]) if n else 0.0
 
 
-# --- an exact median in two passes -------------------------------------------------------------
+# --- exact order statistics without a sort: medians and percentiles ---------------------------
 
 MEDIAN_BINS = 4096
-"""Bins of `kth_smallest`'s histogram: the values in one bin are all it sorts."""
-
-
+"""Bins of `_order_pair`'s histograms."""
 MEDIAN_SORT = 256
-"""`_middle` sorts what is left once it is this few values."""
+"""`_order_pair` sorts what is left once it is this few values."""
 
 
 @numba.njit(cache=True)
-def _middle(values: F64, lo: float, hi: float) -> tuple[float, float]:
-    """The two middle values of the sorted `values` (the same one twice if their number is
-    odd), all finite in [lo, hi], exactly: a histogram finds the bins they fall in (the
-    binning is monotone), the values in those bins are kept, and so on until few are left."""
-    k0, k1 = (values.size - 1) // 2, values.size // 2
+def _order_pair(values: F64, k0: int, k1: int, lo: float, hi: float) -> tuple[float, float]:
+    """The k0-th and k1-th smallest (from 0, k0 ≤ k1 ≤ k0 + 1) of `values`, all finite in
+    [lo, hi], exactly: a histogram finds the bins they fall in (the binning is monotone),
+    the values in those bins are kept, and so on until few are left."""
     kept = values
     while lo < hi:
         scale = MEDIAN_BINS / (hi - lo)
@@ -369,17 +372,39 @@ def _middle(values: F64, lo: float, hi: float) -> tuple[float, float]:
 
 
 @numba.njit(cache=True)
-def middle(values: F64) -> tuple[float, float]:
-    """The two middle values of the sorted non-empty `values` (the same one twice if their
-    number is odd; NaN if one is NaN), by exact selection (`_middle`) when all are finite."""
-    n = values.size
+def order_pair(values: F64, k0: int, k1: int) -> tuple[float, float]:
+    """The k0-th and k1-th smallest of a non-empty array (k0 ≤ k1 ≤ k0 + 1; NaN if one is
+    NaN), by exact selection (`_order_pair`) when all are finite."""
     lo, hi = values.min(), values.max()
     if np.isnan(lo) or np.isnan(hi):
         return np.nan, np.nan
     if np.isinf(lo) or np.isinf(hi):
         ordered = np.sort(values)
-        return float(ordered[(n - 1) // 2]), float(ordered[n // 2])
-    return _middle(values, lo, hi)
+        return float(ordered[k0]), float(ordered[k1])
+    return _order_pair(values, k0, k1, lo, hi)
+
+
+@numba.njit(cache=True)
+def middle(values: F64) -> tuple[float, float]:
+    """The two middle values of the sorted non-empty `values` (the same one twice if their
+    number is odd; NaN if one is NaN)."""
+    return order_pair(values, (values.size - 1) // 2, values.size // 2)
+
+
+@numba.njit(cache=True)
+def percentile(values: F64, q: float) -> float:
+    """np.percentile(values, q) of a non-empty array, bit for bit: numpy's linear
+    interpolation between the two order statistics around (n − 1)·q/100."""
+    n = values.size
+    index = (n - 1) * (q / 100.0)
+    if index >= n - 1:
+        a, _ = order_pair(values, n - 1, n - 1)
+        return a
+    below = math.floor(index)
+    a, b = order_pair(values, int(below), int(below) + 1)
+    t = index - below
+    step = b - a
+    return a + step * t if t < 0.5 else b - step * (1.0 - t)
 
 
 @numba.njit(cache=True)
