@@ -154,6 +154,12 @@ def potts_weights(shape: tuple[int, int], smoothness: float) -> F64:
     return weights
 
 
+def potts_bound(smoothness: float) -> float:
+    """An upper bound of every pixel's total Potts weight W_p: 4λ + 4λ/√2, raised by a
+    relative 1e-12 so that rounding in the stored weights never takes a sum above it."""
+    return (4.0 * smoothness + 4.0 * (smoothness / math.sqrt(2.0))) * (1.0 + 1e-12)
+
+
 # --- range in the smoothness term (§4.2) ------------------------------------------------------
 
 

@@ -67,6 +67,10 @@ class Problem:
     """(H, W) cost of labelling the pixel background."""
     weights: F64
     """(4, H, W) non-negative edge weights along `energy.OFFSETS` (see `tofcut.tracker.energy`)."""
+    weight_bound: float | None = None
+    """An upper bound of every pixel's total edge weight W_p, when the energy knows one in
+    closed form (Potts: `energy.potts_bound`); `solve_reduced` then reads only the unary
+    costs in its pass over the frame. None: it sums each pixel's weights instead."""
 
     def __post_init__(self) -> None:
         shape = self.cost1.shape
@@ -74,6 +78,8 @@ class Problem:
             raise ValueError(f"unary costs must be two equal (H, W) arrays, not {shape}")
         if self.weights.shape != (len(OFFSETS), *shape):
             raise ValueError(f"weights must be (4, H, W), not {self.weights.shape}")
+        if self.weight_bound is not None and not self.weight_bound >= 0.0:
+            raise ValueError(f"weight_bound must be ≥ 0, not {self.weight_bound!r}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -116,6 +122,7 @@ def solve_reduced(problem: Problem) -> Solution:
         problem.cost1,
         problem.cost0,
         np.ascontiguousarray(problem.weights),
+        -1.0 if problem.weight_bound is None else problem.weight_bound,
         int(FULL_GRAPH_SHARE * h * w),
     )
     if pixels.size > FULL_GRAPH_SHARE * h * w:
@@ -133,10 +140,20 @@ def solve_reduced(problem: Problem) -> Solution:
 
 
 @numba.njit(cache=True)
-def _first_pass(cost1: F64, cost0: F64, weights: F64, labels: BOOL, free: BOOL) -> None:
-    """labels = δ < 0 and free = |δ| ≤ W_p for every pixel (the interior in one loop that
-    the compiler vectorises, the border through `edge_weight`)."""
+def _first_pass(
+    cost1: F64, cost0: F64, weights: F64, bound: float, labels: BOOL, free: BOOL
+) -> None:
+    """labels = δ < 0 and free = |δ| ≤ W_p for every pixel, or |δ| ≤ `bound` if that is
+    ≥ 0 (a bound of every W_p: the weights are not read). W_p is summed for the interior in
+    one loop that the compiler vectorises, at the border through `edge_weight`."""
     h, w = cost1.shape
+    if bound >= 0.0:
+        for v in range(h):
+            for u in range(w):
+                d = float(cost1[v, u]) - float(cost0[v, u])
+                labels[v, u] = d < 0.0
+                free[v, u] = abs(d) <= bound
+        return
     for v in range(1, h - 1):
         for u in range(1, w - 1):
             d = float(cost1[v, u]) - float(cost0[v, u])
@@ -191,7 +208,7 @@ def _flat_true(flags: BOOL) -> I64:
 
 @numba.njit(cache=True)
 def _reduce(
-    cost1: F64, cost0: F64, weights: F64, max_free: int
+    cost1: F64, cost0: F64, weights: F64, bound: float, max_free: int
 ) -> tuple[BOOL, I64, F64, F64, I64, I64, F64]:
     """(labels, free pixels (flat), their cost1 and cost0 with the fixed neighbours' edges
     folded in, and the edges (heads, tails, weights, as indices into the free pixels)
@@ -200,7 +217,7 @@ def _reduce(
     h, w = cost1.shape
     labels2 = np.empty((h, w), dtype=np.bool_)
     free2 = np.empty((h, w), dtype=np.bool_)
-    _first_pass(cost1, cost0, weights, labels2, free2)
+    _first_pass(cost1, cost0, weights, bound, labels2, free2)
     labels, free = labels2.reshape(-1), free2.reshape(-1)
     pixels = _flat_true(free)
     count = pixels.size
