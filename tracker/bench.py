@@ -3,7 +3,9 @@
 The cut is timed from the built energy (unary costs and weights) to the labels, the part
 the two solvers do differently: both get the same `Problem`, and the fast one's time
 includes all its own work on it (the full-frame pass that fixes pixels by their unary
-cost, the window and its contraction); nothing is computed for it in advance. `segment` end
+cost, the window and its contraction); nothing is computed for it in advance but what the
+energy states in closed form (the Potts energies' bound of a pixel's total weight,
+4λ + 4λ/√2, which spares that pass reading the weights). `segment` end
 to end (estimation and building the energy included, which both paths share) is timed too.
 Two ways, the same for both solvers, all in one process. Times are CPU time of this
 process (`time.process_time`, every thread counted), the fastest of the repeats: on a

@@ -19,7 +19,10 @@ into the free pixel's unary cost leaves an energy over the free pixels whose min
 exactly the original minima restricted to them (all minima agree on the fixed pixels), so
 the rule applies again to it, with W_p counting only edges to free pixels; it is applied
 until no free pixel is forced (the order does not matter: every pixel fixed is fixed in
-every minimum). The per-pixel work is compiled (numba); the graph is PyMaxflow's.
+every minimum). The first pass compares |δ_p| with W_p, or with a bound of every W_p
+when the energy gives one (`Problem.weight_bound`: then only the unary costs are read);
+pixels it leaves free but the exact W_p would have fixed are fixed by the next passes, so
+the result is the same. The per-pixel work is compiled (numba); the graph is PyMaxflow's.
 
 Why `solve_cropped` is exact (a lower bound met). For a window Q, dropping the non-negative
 weights of the edges that leave Q and bounding each outside pixel's unary cost from below
