@@ -13,7 +13,14 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_flow
 
 from tofcut.tracker.contraction import cut_lower_bounds, merged_nodes, solve_merged
-from tofcut.tracker.energy import OFFSETS, energy_of, pair_slices, seed_costs
+from tofcut.tracker.energy import (
+    OFFSETS,
+    energy_of,
+    pair_slices,
+    potts_bound,
+    potts_weights,
+    seed_costs,
+)
 from tofcut.tracker.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
 
 
@@ -70,6 +77,56 @@ def test_cropped_solver_equals_the_reference_on_random_seeded_problems(seed):
     fast = solve_cropped(problem, pixel, half_size=int(rng.integers(0, 6)))
     assert value(problem, fast.labels) == pytest.approx(value(problem, ref.labels), rel=1e-12)
     assert_same_minimum(problem, fast.labels, ref.labels)
+
+
+def total_weights(weights: np.ndarray) -> np.ndarray:
+    """W_p: the sum of the weights of each pixel's in-frame edges."""
+    total = np.zeros(weights.shape[1:])
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices(weights.shape[1:], k)
+        total[sp] += weights[k][sp]
+        total[sq] += weights[k][sp]
+    return total
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_a_weight_bound_changes_nothing_but_what_is_read(seed):
+    rng = np.random.default_rng(7000 + seed)
+    h, w = (int(x) for x in rng.integers(1, 40, 2))
+    problem = random_problem(rng, h, w)
+    bound = float(total_weights(problem.weights).max()) * rng.choice([1.0, 1.5, 10.0])
+    bounded = Problem(problem.cost1, problem.cost0, problem.weights, bound)
+    fast, exact = solve_reduced(bounded), solve_reduced(problem)
+    assert np.array_equal(fast.labels, exact.labels)
+    # the same fixed point, unless a loose bound left so many pixels free at first that the
+    # full grid was cut instead
+    assert fast.graph_nodes in (exact.graph_nodes, h * w)
+    assert np.array_equal(fast.labels, solve_reference(problem).labels)
+
+
+def test_the_potts_bound_bounds_every_pixels_weight_and_bad_bounds_are_refused():
+    for smoothness in (0.0, 1.0, 200.0, 1e-7, 3e5):
+        weights = potts_weights((7, 9), smoothness)
+        assert total_weights(weights).max() <= potts_bound(smoothness)
+    with pytest.raises(ValueError, match="weight_bound"):
+        Problem(np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((4, 2, 2)), -1.0)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_fast_solvers_take_windows_of_larger_arrays(seed):
+    # strided views (as `solve_cropped` and callers cutting a region pass them), with the
+    # weights of the edges leaving the window left in: both solvers must ignore those
+    rng = np.random.default_rng(6000 + seed)
+    big = random_problem(rng, 30, 40)
+    window = (slice(3, 27, 2), slice(5, 36))
+    problem = Problem(big.cost1[window], big.cost0[window], big.weights[(slice(None), *window)])
+    ref = solve_reference(problem)
+    assert np.array_equal(solve_reduced(problem).labels, ref.labels)
+    seeded, pixel = seeded_problem(rng, 30, 40)
+    cut = Problem(seeded.cost1[:, 5:], seeded.cost0[:, 5:], seeded.weights[:, :, 5:])
+    centre = (max(pixel[0] - 5, 0), pixel[1])
+    cut = Problem(*seed_costs(cut.shape, centre), cut.weights)
+    assert_same_minimum(cut, solve_cropped(cut, centre, 2).labels, solve_reference(cut).labels)
 
 
 def assert_same_minimum(problem: Problem, fast: np.ndarray, ref: np.ndarray) -> None:

@@ -1,11 +1,16 @@
 """How much faster the exact fast cut is than the full-frame reference, on the same energy.
 
 The cut is timed from the built energy (unary costs and weights) to the labels, the part
-the two solvers do differently; `segment` end to end (estimation and building the energy
-included, which both paths share) is timed too. Two ways, the same for both solvers, all in
-one process. Times are CPU time of this process (`time.process_time`, every thread
-counted), the fastest of the repeats: on a shared machine wall time counts whatever else
-runs, and it slows the long reference calls more often than the short fast ones.
+the two solvers do differently: both get the same `Problem`, and the fast one's time
+includes all its own work on it (the full-frame pass that fixes pixels by their unary
+cost, the window and its contraction); nothing is computed for it in advance but what the
+energy states in closed form (the Potts energies' bound of a pixel's total weight,
+4λ + 4λ/√2, which spares that pass reading the weights). `segment` end
+to end (estimation and building the energy included, which both paths share) is timed too.
+Two ways, the same for both solvers, all in one process. Times are CPU time of this
+process (`time.process_time`, every thread counted), the fastest of the repeats: on a
+shared machine wall time counts whatever else runs, and it slows the long reference calls
+more often than the short fast ones.
 
 - steady: each solver called back to back (after one warm-up call), as `timeit` does;
 - cold: a 32 MiB buffer is read before every call, so each starts with its inputs out of

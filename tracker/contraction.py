@@ -8,12 +8,14 @@ no minimum separates them, and merging them into one node (terminal capacities a
 summed) leaves exactly the same set of minima.
 
 The weight of every p–q cut is bounded from below by edge-disjoint paths (Menger): the
-direct edge plus, through each common 8-neighbour c, min(w(p, c), w(c, q)). Computed for
-every east and south pair of the grid in a few dozen array operations; merged pixels are
-the connected components of the pairs whose bound exceeds the slack (diagonal pairs are not
-merged directly: fewer merges, never a wrong one).
+direct edge plus, through each common 8-neighbour c, min(w(p, c), w(c, q)). Merged pixels
+are the connected components of the east and south pairs whose bound exceeds the slack
+(diagonal pairs are not merged directly: fewer merges, never a wrong one), found in one
+compiled raster scan with union-find; the bound's paths are only summed where the direct
+edge alone does not already exceed the slack.
 
-For the §4.2 energy (1/n to the background, the seed's link 1) the slack is 1 − 1/n, and
+For the §4.2 energy (1/n to the background, the seed's link 1) the slack of a window of m
+pixels is (m − 1)/n, at most 1 − 1/n, and
 the edges inside a smooth surface (weights near exp(−1/2) with σs at the neighbour step) have
 bounds of 2 or more: a whole surface becomes one node, and the max-flow no longer has to
 push 1/n of flow to each of its pixels one by one.
@@ -24,22 +26,23 @@ from __future__ import annotations
 import functools
 
 import maxflow
+import numba
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
-from tofcut.tracker.energy import OFFSETS, pair_slices
+from tofcut.tracker.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
 
 F64 = npt.NDArray[np.float64]
 BOOL = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 
-DIRECTIONS: tuple[tuple[int, int], ...] = OFFSETS + tuple((-dv, -du) for dv, du in OFFSETS)
-"""All 8 neighbour directions: OFFSETS (forward), then their opposites (backward)."""
-
 MARGIN = 1e-9
 """Relative margin on the slack, so that rounding in the sums never merges a pair a minimum
 could separate."""
+
+AXIAL = (0, 1)
+"""The OFFSETS along which pixels are merged (east, south): enough to join a surface, and
+their merges are connected components of a 4-connected image (see `merged_nodes`)."""
 
 
 @functools.cache
@@ -55,86 +58,128 @@ def _common_neighbours(k: int) -> tuple[tuple[int, int], ...]:
     return tuple(out)
 
 
-def all_directions(weights: F64) -> F64:
-    """(8, H+2, W+2): the weight of the edge from each pixel (padded by one) in each of
-    DIRECTIONS; zero in the padding, so an edge that leaves the grid (whatever `weights`
-    holds for it, e.g. in a window cut out of a frame) is on no path between two pixels."""
+COMMONS = np.array([_common_neighbours(k) for k in AXIAL], dtype=np.int64)
+"""(2, 4, 2): for the east and south pairs, the DIRECTIONS index of p → c and of c → q over
+their four common neighbours c."""
+
+
+@numba.njit(cache=True, inline="always")
+def _pair_bound(weights: F64, v: int, u: int, slot: int, limit: float) -> float:
+    """The lower bound of `cut_lower_bounds` for the pair of (v, u) along OFFSETS[AXIAL[slot]]
+    (0 if the neighbour is off the grid), or the direct edge alone once that exceeds `limit`
+    (the sum can only be larger)."""
     _, h, w = weights.shape
-    out = np.zeros((len(DIRECTIONS), h + 2, w + 2))
-    out[: len(OFFSETS), 1:-1, 1:-1] = weights
-    for k, (dv, du) in enumerate(OFFSETS):
-        # the edge q → q − off at q = p + off is the edge p → p + off, stored at p
-        out[len(OFFSETS) + k, 1 + dv : 1 + dv + h, 1 + du : 1 + du + w] = weights[k]
-    out[:, (0, -1), :] = 0.0
-    out[:, :, (0, -1)] = 0.0
-    return out
+    if slot == 0 and 0 < v < h - 1 and u < w - 1:  # east, every common neighbour in the grid
+        direct = weights[0, v, u]
+        if direct > limit:
+            return float(direct)
+        paths = min(weights[1, v, u], weights[3, v, u + 1])
+        paths += min(weights[2, v, u], weights[1, v, u + 1])
+        paths += min(weights[1, v - 1, u], weights[2, v - 1, u])
+        paths += min(weights[3, v - 1, u + 1], weights[1, v - 1, u + 1])
+        return float(paths + direct)
+    if slot == 1 and v < h - 1 and 0 < u < w - 1:  # south, likewise
+        direct = weights[1, v, u]
+        if direct > limit:
+            return float(direct)
+        paths = min(weights[0, v, u], weights[3, v, u + 1])
+        paths += min(weights[2, v, u], weights[0, v + 1, u])
+        paths += min(weights[3, v, u], weights[0, v + 1, u - 1])
+        paths += min(weights[0, v, u - 1], weights[2, v, u - 1])
+        return float(paths + direct)
+    # near the border: the same sum (in the order of COMMONS), edges off the grid weigh 0
+    k = AXIAL[slot]
+    direct = edge_weight(weights, v, u, k)
+    if direct > limit:
+        return direct
+    paths = 0.0
+    for c in range(COMMONS.shape[1]):
+        i, j = COMMONS[slot, c, 0], COMMONS[slot, c, 1]
+        first = edge_weight(weights, v, u, i)
+        if first > 0.0:
+            paths += min(first, edge_weight(weights, v + DV[i], u + DU[i], j))
+    return paths + direct
 
 
-AXIAL = (0, 1)
-"""The OFFSETS along which pixels are merged (east, south): enough to join a surface, and
-their merges are connected components of a 4-connected image (see `merged_nodes`)."""
+@numba.njit(cache=True)
+def _lower_bounds(weights: F64) -> F64:
+    _, h, w = weights.shape
+    bounds = np.zeros((len(AXIAL), h, w))
+    for slot in range(len(AXIAL)):
+        for v in range(h):
+            for u in range(w):
+                bounds[slot, v, u] = _pair_bound(weights, v, u, slot, np.inf)
+    return bounds
 
 
 def cut_lower_bounds(weights: F64) -> F64:
     """(2, H, W): for each east and south edge of `weights`, a lower bound of the weight of
     every cut that separates its two pixels (the direct edge plus the two-edge paths through
-    the four common neighbours, which are edge-disjoint)."""
-    _, h, w = weights.shape
-    w8 = all_directions(weights)
-    bounds = np.empty((len(AXIAL), h, w))
-    for slot, k in enumerate(AXIAL):
-        commons = _common_neighbours(k)
-        to_c = w8[[i for i, _ in commons], 1:-1, 1:-1]
-        c_to_q = np.stack(
-            [
-                w8[j, 1 + DIRECTIONS[i][0] : 1 + DIRECTIONS[i][0] + h, 1 + DIRECTIONS[i][1] :][
-                    :, :w
-                ]
-                for i, j in commons
-            ]
-        )
-        np.minimum(to_c, c_to_q, out=to_c)
-        np.add(to_c.sum(axis=0), weights[k], out=bounds[slot])
-    return bounds
+    the four common neighbours, which are edge-disjoint); 0 where the neighbour is off the
+    grid. Edges that leave the grid are on no path, whatever `weights` holds for them."""
+    return _lower_bounds(weights)
 
 
+@numba.njit(cache=True)
 def slack(cost1: F64, cost0: F64) -> float:
     """U − L: the most any minimum's cut can weigh (module docstring)."""
-    upper = min(float(cost0.sum()), float(cost1.sum()))
-    return upper - float(np.minimum(cost1, cost0).sum())
+    sum1 = sum0 = lower = 0.0
+    for v in range(cost1.shape[0]):
+        for u in range(cost1.shape[1]):
+            sum1 += cost1[v, u]
+            sum0 += cost0[v, u]
+            lower += min(cost1[v, u], cost0[v, u])
+    return min(sum0, sum1) - lower
 
 
 def merged_nodes(cost1: F64, cost0: F64, weights: F64) -> tuple[int, I64]:
     """(number of nodes, (H, W) node of each pixel) after merging every pair of east or south
-    neighbours that no minimum separates.
-
-    The merges are the 4-connected components of a (2H−1, 2W−1) image with the pixels at
-    even places and, between two of them, the pair's "merge" flag.
-    """
-    h, w = cost1.shape
+    neighbours that no minimum separates: the connected components of the pairs whose
+    bound exceeds the slack, numbered in the order a raster scan meets them."""
     limit = slack(cost1, cost0)
-    limit += MARGIN * (abs(limit) + 1.0)
-    joined = cut_lower_bounds(weights) > limit
-    image = np.zeros((2 * h - 1, 2 * w - 1), dtype=bool)
-    image[::2, ::2] = True
-    image[::2, 1::2] = joined[0][:, : w - 1]
-    image[1::2, ::2] = joined[1][: h - 1, :]
-    labelled, count = ndimage.label(image)
-    return int(count), labelled[::2, ::2].astype(np.int64) - 1
+    return _components(weights, limit + MARGIN * (abs(limit) + 1.0))
 
 
-@functools.lru_cache(maxsize=16)
-def _edge_index(h: int, w: int) -> tuple[I64, I64, I64]:
-    """Flat (p, q, weight index) of every in-frame 8-neighbour edge of an H×W grid, the
-    weight index into the flattened (4, H, W) weights."""
-    index = np.arange(h * w).reshape(h, w)
-    heads, tails, at = [], [], []
-    for k in range(len(OFFSETS)):
-        sp, sq = pair_slices((h, w), k)
-        heads.append(index[sp].reshape(-1))
-        tails.append(index[sq].reshape(-1))
-        at.append(index[sp].reshape(-1) + k * h * w)
-    return np.concatenate(heads), np.concatenate(tails), np.concatenate(at)
+@numba.njit(cache=True)
+def _root(parent: I64, p: int) -> int:
+    while parent[p] != p:
+        parent[p] = parent[parent[p]]
+        p = parent[p]
+    return p
+
+
+@numba.njit(cache=True)
+def _components(weights: F64, limit: float) -> tuple[int, I64]:
+    """Connected components of the pairs whose bound exceeds `limit`, in one raster scan
+    (each pixel joins its west or north neighbour's set) with union-find."""
+    _, h, w = weights.shape
+    parent = np.empty(h * w, dtype=np.int64)
+    for v in range(h):
+        for u in range(w):
+            p = v * w + u
+            west = u > 0 and _pair_bound(weights, v, u - 1, 0, limit) > limit
+            north = v > 0 and _pair_bound(weights, v - 1, u, 1, limit) > limit
+            if west and north:
+                a, b = _root(parent, p - 1), _root(parent, p - w)
+                parent[p] = min(a, b)
+                parent[max(a, b)] = min(a, b)
+            elif west:
+                parent[p] = _root(parent, p - 1)
+            elif north:
+                parent[p] = _root(parent, p - w)
+            else:
+                parent[p] = p
+    node = np.empty((h, w), dtype=np.int64)
+    flat = node.reshape(-1)
+    count = 0
+    for p in range(h * w):
+        r = _root(parent, p)
+        if r == p:
+            flat[p] = count
+            count += 1
+        else:
+            flat[p] = flat[r]
+    return count, node
 
 
 def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
@@ -146,23 +191,69 @@ def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
 
 def cut_merged(cost1: F64, cost0: F64, weights: F64, count: int, node: I64) -> BOOL:
     """The (H, W) labels of a minimum by graph cut on the nodes of `merged_nodes`."""
-    h, w = cost1.shape
-    flat = node.reshape(-1)
-    cap1 = np.bincount(flat, cost1.reshape(-1), minlength=count)
-    cap0 = np.bincount(flat, cost0.reshape(-1), minlength=count)
-    heads, tails, at = _edge_index(h, w)
-    a, b = flat[heads], flat[tails]
-    between = np.flatnonzero(a != b)  # (a zero weight makes a harmless zero-capacity edge)
-    a, b = a[between], b[between]
-    # parallel edges between two merged nodes become one: far fewer augmenting paths
-    pairs, where = np.unique(np.minimum(a, b) * count + np.maximum(a, b), return_inverse=True)
-    graph = maxflow.Graph[float](count, pairs.size)
+    cap1, cap0, heads, tails, caps = _merged_graph(cost1, cost0, weights, count, node)
+    graph = maxflow.Graph[float](count, heads.size)
     ids = graph.add_nodes(count)
-    if pairs.size:
-        cap = np.bincount(where, weights.reshape(-1)[at[between]], minlength=pairs.size)
-        graph.add_edges(pairs // count, pairs % count, cap, cap)
+    if heads.size:
+        graph.add_edges(heads, tails, caps, caps)
     graph.add_grid_tedges(ids, cap1, cap0)
     graph.maxflow()
     target = np.asarray(graph.get_grid_segments(ids), dtype=bool)
     labels: BOOL = target[node]
     return labels
+
+
+@numba.njit(cache=True)
+def _merged_graph(
+    cost1: F64, cost0: F64, weights: F64, count: int, node: I64
+) -> tuple[F64, F64, I64, I64, F64]:
+    """Terminal capacities (summed over each node's pixels) and edges of the merged graph:
+    the in-grid edges between two nodes, parallel ones made one (far fewer augmenting
+    paths), zero weights left out."""
+    h, w = cost1.shape
+    cap1, cap0 = np.zeros(count), np.zeros(count)
+    for v in range(h):
+        for u in range(w):
+            cap1[node[v, u]] += cost1[v, u]
+            cap0[node[v, u]] += cost0[v, u]
+    # the edges between two nodes, as (lower node, higher node, weight), bucketed by the
+    # lower node (stable: parallel edges are summed in the order met)
+    lower = np.empty(len(OFFSETS) * h * w, dtype=np.int64)
+    higher = np.empty(len(OFFSETS) * h * w, dtype=np.int64)
+    values = np.empty(len(OFFSETS) * h * w)
+    starts = np.zeros(count + 1, dtype=np.int64)
+    n = 0
+    for k in range(len(OFFSETS)):
+        for v in range(h):
+            for u in range(w):
+                wt = edge_weight(weights, v, u, k)
+                if wt == 0.0:
+                    continue
+                a, b = node[v, u], node[v + DV[k], u + DU[k]]
+                if a != b:
+                    lower[n], higher[n], values[n] = min(a, b), max(a, b), wt
+                    starts[lower[n] + 1] += 1
+                    n += 1
+    starts = np.cumsum(starts)
+    fill = starts[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[lower[i]]] = i
+        fill[lower[i]] += 1
+    # one edge per pair of nodes: `seen[b]` is the last lower node met with b, at `slot[b]`
+    seen = np.full(count, -1, dtype=np.int64)
+    slot = np.empty(count, dtype=np.int64)
+    heads = np.empty(n, dtype=np.int64)
+    tails = np.empty(n, dtype=np.int64)
+    caps = np.empty(n)
+    pairs = 0
+    for a in range(count):
+        for i in order[starts[a] : starts[a + 1]]:
+            b = higher[i]
+            if seen[b] == a:
+                caps[slot[b]] += values[i]
+            else:
+                seen[b], slot[b] = a, pairs
+                heads[pairs], tails[pairs], caps[pairs] = a, b, values[i]
+                pairs += 1
+    return cap1, cap0, heads[:pairs], tails[:pairs], caps[:pairs]

@@ -303,4 +303,4 @@ def build_problem(
     elif energy is Energy.IMAGE_PLANE:
         cost1 = cost1 + en.image_penalty(valid, model.pixel, params.beta_image)
     weights = en.potts_weights(valid.shape, params.smoothness)
-    return Problem(cost1, cost0, weights)
+    return Problem(cost1, cost0, weights, en.potts_bound(params.smoothness))
