@@ -60,11 +60,14 @@ def targets(results: Results) -> list[Target]:
         _target("demodulation, 176×144, one core", "≥ 3000 frames/s",
                 _value(demod, "fast_fps"), "{:.0f} frames/s", lambda v: v >= 3000)
     )  # fmt: skip
-    cuts = [r["cut_ratio"] for r in results.get("segment", {}).get("rows", []) if r["data_term"]]
-    out.append(
-        _target("fast data-term cut vs the full-frame reference (every case)", "≥ 20×",
-                min(cuts) if cuts else None, "{:.1f}× (slowest case)", lambda v: v >= 20)
-    )  # fmt: skip
+    seg_rows = results.get("segment", {}).get("rows", [])
+    for data_term, what, goal in ((True, "data-term", 20), (False, "§4.2", 10)):
+        cuts = [r["cut_ratio"] for r in seg_rows if r["data_term"] == data_term]
+        out.append(
+            _target(f"fast {what} cut vs the full-frame reference (every case)", f"≥ {goal}×",
+                    min(cuts) if cuts else None, "{:.1f}× (slowest case)",
+                    lambda v, goal=goal: v >= goal)
+        )  # fmt: skip
     ten = _row(results.get("tracker", {}).get("objects", []), objects=10)
     out.append(
         _target("tracker, 10 objects, raw bytes → tracks", "≥ 200 frames/s",
@@ -144,8 +147,8 @@ def markdown(results: Results, meta: dict[str, Any], errors: dict[str, str]) -> 
         f"{m['cpus']} cores, stages pinned to core {m['pinned_cpu']}, one thread per numeric "
         f"library; Python {m['python']}, numpy {m['numpy']}. Each stage ran in its own "
         "process; times are medians after warm-up, in CPU time of the working thread (other "
-        "processes on a shared machine do not count), except segmentation's, which are wall "
-        "time. Absolute times still drift between machines and runs; the ratios hold better.",
+        "processes on a shared machine do not count); segmentation's are the fastest of their "
+        "repeats. Absolute times still drift between machines and runs; the ratios hold better.",
         "",
         "## Targets",
         "",
@@ -169,19 +172,20 @@ def markdown(results: Results, meta: dict[str, Any], errors: dict[str, str]) -> 
         out += ["## Segmentation, one object, 176×144", ""]
         out += [
             "The cut alone (from the built energy to the labels), fast against the full-frame "
-            "reference; `segment()` end to end; OpenCV's grabCut (5 iterations, from a box "
-            "round the object, on an image of intensity, range and amplitude); IoU against "
-            "ground truth.",
+            "reference; `segment()` end to end, fast and reference; OpenCV's grabCut (5 "
+            "iterations, wall time, from a box round the object, on an image of intensity, "
+            "range and amplitude); IoU against ground truth.",
             "",
         ]
         if not seg["grabcut"]:
             out += [f"GrabCut not measured: {seg['note']}.", ""]
         out += _table(
             ["scene", "object", "energy", "reference cut", "fast cut", "ratio", "same labels",
-             "segment()", "grabCut", "IoU fast / reference / grabCut"],
+             "segment() fast / reference", "grabCut", "IoU fast / reference / grabCut"],
             [[r["scene"], r["object"], r["energy"], _ms(r["reference_cut_s"]),
               _ms(r["fast_cut_s"]), f"{r['cut_ratio']:.1f}×", "yes" if r["identical"] else "NO",
-              _ms(r["segment_fast_s"]), _ms(r["grabcut_s"]) if "grabcut_s" in r else "—",
+              f"{_ms(r['segment_fast_s'])} / {_ms(r['segment_reference_s'])}",
+              _ms(r["grabcut_s"]) if "grabcut_s" in r else "—",
               f"{r['iou_fast']:.2f} / {r['iou_reference']:.2f} / "
               + (f"{r['iou_grabcut']:.2f}" if "iou_grabcut" in r else "—")]
              for r in seg["rows"]],
