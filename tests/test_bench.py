@@ -30,7 +30,7 @@ def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, cap
     assert doc["meta"]["errors"] == {}
     assert doc["meta"]["quick"] is True
     verdicts = {t["what"]: t["verdict"] for t in doc["targets"]}
-    assert len(verdicts) == 6
+    assert len(verdicts) == 7
     assert set(verdicts.values()) <= {"PASS", "MISS"}  # every target measured, even quick
     stages = doc["stages"]
     assert [r["objects"] for r in stages["tracker"]["objects"]] == [1, 10]
