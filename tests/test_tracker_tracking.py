@@ -174,7 +174,7 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
 
 def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():
     from tofcut.driver.calibration import pixel_rays
-    from tofcut.tools.cmd_evaluate import score
+    from tofcut.tools.cmd_evaluate import per_object, score
 
     src = open_scene("conveyor", 0)
     rays = pixel_rays(src.calibration)
@@ -201,6 +201,22 @@ def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():
     swapped = score(truths, tracks, masks, rays)
     assert swapped["id_switches"] == 2
     assert swapped["mota"] < 1.0
+    # per object, from the masks alone: the truth holds each object whole, under one id
+    objects = per_object(truths, masks)
+    assert objects
+    for o in objects:
+        assert o["held"] == o["frames"]
+        assert o["track_ids"] == [o["id"]]
+        assert o["iou"] == pytest.approx(1.0)
+    # a mask that loses half of the first object's pixels from frame 3 on
+    first = objects[0]["id"]
+    for t in truths[3:]:
+        rows = np.nonzero((t.labels == first).any(axis=1))[0]
+        masks[t.sequence] = masks[t.sequence].copy()
+        masks[t.sequence][rows[: rows.size // 2]] = 0
+    halved = per_object(truths, masks)[0]
+    assert halved["track_ids"] == [first]
+    assert 0.5 < halved["iou"] < 0.95
 
 
 def _pair_entering(side_by_side: bool):
@@ -266,3 +282,28 @@ def test_a_seeded_person_is_followed_under_one_id():
         mask = out.labels == 1
         ious.append((mask & person).sum() / (mask | person).sum())
     assert np.mean(ious[25:]) > 0.7, np.mean(ious[25:])
+
+
+def test_what_stays_put_while_the_belt_runs_becomes_scenery():
+    # paper-fig3's gantry stands over the belt from the first frame, so it stands out of the
+    # belt put back under it; it never moves while the belt does: after `still_s` it is
+    # scenery, and the box passing under it is not taken by it
+    from tofcut.tracker.belt_prior import VelocityPrior
+
+    src = open_scene("paper-fig3", 0)
+    b = src.belt
+    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    period = src.settings.frame_period * 1e-4
+    ended = []
+    for i in range(200):
+        frame, truth = decode(src, scene_exposure(src, i * period, i))
+        out = tracker.update(frame, prior)
+        ended += out.ended
+    gantry = next(o for o in truth.objects if o.name == "gantry")
+    box = next(o for o in truth.objects if o.name == "box")
+    assert (out.labels[truth.labels == gantry.id] == 0).mean() > 0.95
+    assert ended  # the gantry's track, handed to the scenery
+    ids, counts = np.unique(out.labels[truth.labels == box.id], return_counts=True)
+    assert ids[np.argmax(counts)] > 0
+    assert sum(t.visible for t in out.tracks) == 1

@@ -9,6 +9,10 @@ pixels' rays), a track's the centroid it reports; they match within `--gate` met
 score, or of static scenery, are ignored: neither hits nor false positives. An object that
 leaves the field of view and comes back (the emulated scenes loop) is a new object to
 score, as it is to any tracker: its centroid's leaving the view ends a visit.
+
+`--per-object` adds, for every object, the view from its masks alone (no gate): in how many
+of its frames a track held most of it, which tracks those were, and its mean mask IoU with
+that track over all its frames (0 where none held it): "kept one id in every frame".
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--masks", type=Path, required=True, metavar="FILE.npz")
     p.add_argument("--gate", type=float, default=0.1, help="match distance, metres (0.1)")
     p.add_argument("--min-pixels", type=int, default=50, help="smallest object scored (50)")
+    p.add_argument("--per-object", action="store_true", help="also a line per object (masks)")
     p.add_argument("--json", type=Path, help="also write the scores here")
     p.set_defaults(func=run)
 
@@ -128,6 +133,38 @@ def score(
     }
 
 
+def per_object(
+    truths: list[FrameTruth], masks: dict[int, np.ndarray], min_pixels: int = 50
+) -> list[dict[str, Any]]:
+    """Per object (all its frames with at least `min_pixels` visible pixels): frames, frames
+    a track held most of it, the ids of those tracks, and the mean mask IoU with them."""
+    seen: dict[int, dict[str, Any]] = {}
+    for truth in truths:
+        labels = masks.get(truth.sequence)
+        for obj in truth.objects:
+            mine = truth.labels == obj.id
+            n = int(mine.sum())
+            if n < min_pixels:
+                continue
+            row = seen.setdefault(obj.id, {"id": obj.id, "name": obj.name, "frames": 0,
+                                           "held": 0, "track_ids": set(), "iou": 0.0})  # fmt: skip
+            row["frames"] += 1
+            if labels is None:
+                continue
+            ids, counts = np.unique(labels[mine], return_counts=True)
+            best = int(ids[np.argmax(counts)])
+            if best == 0 or counts.max() * 2 <= n:
+                continue
+            held = labels == best
+            row["held"] += 1
+            row["track_ids"].add(best)
+            row["iou"] += float((held & mine).sum() / (held | mine).sum())
+    return [
+        {**r, "track_ids": sorted(r["track_ids"]), "iou": r["iou"] / r["frames"]}
+        for r in sorted(seen.values(), key=lambda r: int(r["id"]))
+    ]
+
+
 def run(args: argparse.Namespace) -> int:
     path = truth_path(args.capture)
     if not path.is_file():
@@ -152,6 +189,14 @@ def run(args: argparse.Namespace) -> int:
         f"ID switches {result['id_switches']}  mean mask IoU {result['mean_iou']:.3f}  "
         f"(misses {result['misses']}, false positives {result['false_positives']})"
     )
+    if args.per_object:
+        objects = per_object(scored, masks, args.min_pixels)
+        for o in objects:
+            print(
+                f"  {o['name']}: held by a track in {o['held']} of {o['frames']} frames, "
+                f"ids {o['track_ids']}, mean mask IoU {o['iou']:.3f}"
+            )
     if args.json:
-        args.json.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+        doc: dict[str, Any] = {**result, **({"per_object": objects} if args.per_object else {})}
+        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     return 0

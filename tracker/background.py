@@ -118,6 +118,15 @@ class BackgroundModel:
         self.range[above] = surface[above]
         self.sigma[above] = np.maximum(self.sigma[above], self.params.min_sigma_m)
 
+    def absorb(self, frame: Frame, where: B, noise: F64) -> None:
+        """Take what is seen in `where` as scenery from now on (something that stays put)."""
+        take = where & frame.valid
+        self.range[take] = frame.range[take]
+        self.sigma[take] = noise[take]
+        self.known |= take
+        self._farther[take] = 0
+        self._farther_min[take] = np.inf
+
     def standing_out(self, frame: Frame) -> B:
         """Pixels nearer than the scenery by more than the noise allows: something is there."""
         p = self.params

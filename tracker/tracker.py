@@ -80,6 +80,9 @@ class TrackerParams:
     """A region seen again within this distance (metres) is the same candidate."""
     max_hidden_s: float = 2.0
     """A hidden track is predicted this long before it ends."""
+    still_s: float = 2.0
+    """A track seen within `gate_m` of one place this long while the belt would have carried
+    it twice that far is part of the machine (a gantry, a guide): it becomes scenery."""
     whole_fraction: float = 0.85
     """A view within this share of the track's usual size (either way) shows the whole
     object, and is measured; others are partial (occlusion) or tainted."""
@@ -108,6 +111,7 @@ class TrackerParams:
             "smoothness_sigma_m": self.smoothness_sigma_m,
             "gate_m": self.gate_m,
             "max_hidden_s": self.max_hidden_s,
+            "still_s": self.still_s,
             "seed_radius_m": self.seed_radius_m,
             "keep_clear_m": self.keep_clear_m,
             "surface_sigma_m": self.surface_sigma_m,
@@ -147,6 +151,9 @@ class _Live:
     hidden_frames: int = 0
     split_frames: int = 0
     """Frames running in which the track's mask held two surfaces."""
+    anchor: F64 | None = None
+    """Where the track has been seen staying, and for how long (`still_s`)."""
+    still_s: float = 0.0
     last: Track | None = None
 
 
@@ -236,6 +243,8 @@ class Tracker:
         labels = self._segment(frame, noise) if ready else self._grown(frame, noise)
         found, ended = self._measure(frame, labels, dt, noise)
         born += found
+        if ready and prior is not None:
+            ended += self._to_scenery(frame, labels, prior, dt, noise)
         if ready:
             self.background.update(frame, labels == 0, noise, self._surfaces(), p.keep_clear_m)
         elif (
@@ -245,6 +254,38 @@ class Tracker:
             self.background.clear_belt(frame, self.belt)
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
+
+    def _to_scenery(
+        self,
+        frame: Frame,
+        labels: npt.NDArray[np.uint16],
+        prior: VelocityPrior,
+        dt: float,
+        noise: F64,
+    ) -> list[int]:
+        """End the tracks that stay put while the belt runs, their pixels becoming scenery
+        (`still_s`); their ids. Changes `labels`."""
+        p = self.params
+        bg = self.background
+        assert bg is not None
+        runs = prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m
+        ended = []
+        for t in list(self._tracks):
+            pos = t.filter.position
+            if not (runs and t.measured):
+                t.anchor, t.still_s = None, 0.0
+                continue
+            if t.anchor is None or np.linalg.norm(pos - t.anchor) > p.gate_m:
+                t.anchor, t.still_s = pos, 0.0
+                continue
+            t.still_s += dt
+            if t.still_s > p.still_s:
+                mask = labels == t.id
+                bg.absorb(frame, mask, noise)
+                labels[mask] = 0
+                self._tracks.remove(t)
+                ended.append(t.id)
+        return ended
 
     # --- seeds ----------------------------------------------------------------------------
 
