@@ -15,6 +15,7 @@ frames running, becomes a new track.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,9 +23,9 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker import kernels
 from tofcut.tracker.background import BackgroundModel, BackgroundParams
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -35,7 +36,6 @@ from tofcut.tracker.tracks import Track, TrackedFrame
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
-_Index = tuple[slice, slice]
 
 SHAPE_FLOOR_M = 0.01
 """No track's shape is thinner than this (1σ) in any direction."""
@@ -45,9 +45,8 @@ SEED_WINDOW = 10
 """Half-side of the window around a seed whose noise sets the seed's surface step."""
 USUAL_MEMORY = 0.995
 """Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
-
-_NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
-"""Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
+CEILING_MARGIN = 1e-6
+"""Slack on the cost a label may have and still win a pixel, against rounding."""
 
 
 @dataclass(frozen=True)
@@ -144,11 +143,15 @@ class _Candidate:
 
 
 _EIGHT = np.ones((3, 3), bool)
+_NONE = np.zeros((0, 0), bool)
 
 
-def _on_border(mask: B) -> bool:
-    """Whether a mask touches the edge of the image."""
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
+    """Whether a box (a mask's bounding slices) touches the edge of the image."""
+    rows, cols = box
+    return bool(
+        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
+    )
 
 
 def _subsample(points: F64, n: int) -> F64:
@@ -187,6 +190,9 @@ class Tracker:
         self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
         self._next_id = 1
         self._last_time_us: int | None = None
+        p = self.params
+        self._reach = p.surface_sigma_m * math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
+        """Farthest a track's surface can be from a point it could still win."""
 
     def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
         """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
@@ -289,25 +295,6 @@ class Tracker:
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
 
-    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
-        """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
-        sum of the weights at each pixel."""
-        p = self.params
-        h, w = frame.shape
-        valid = frame.valid
-        xyz = frame.xyz
-        ties = []
-        total = np.zeros((h, w))
-        for dv, du, factor in _NEIGHBOURS:
-            a, b = _shifted(h, w, dv, du)
-            d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
-            wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
-            wt[~(valid[a] & valid[b])] = p.smoothness * factor
-            ties.append((a, b, wt))
-            total[a] += wt
-            total[b] += wt
-        return ties, total
-
     def _segment(self, frame: Frame) -> npt.NDArray[np.uint16]:
         """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
 
@@ -315,7 +302,8 @@ class Tracker:
         neighbours could make an object label pay (object cost minus background cost above
         the sum of the pixel's ties), and so are runs of invalid pixels (no data cost either
         way) that touch no pixel left free; the minimum over the rest is the minimum of the
-        whole frame.
+        whole frame. A track's distance from a pixel that it could not win even at its
+        shape's distance alone is not measured (it costs inf) unless the cut needs it.
         """
         p = self.params
         h, w = frame.shape
@@ -325,19 +313,22 @@ class Tracker:
         valid = frame.valid
         u0 = self._background_cost(frame)
         u0[~valid] = 0.0
-        ties, total = self._ties(frame)
+        exps = kernels.tie_exponents(frame.xyz, valid, 2 * p.smoothness_sigma_m**2)
+        wt, total = kernels.tie_weights(np.exp(exps), valid, p.smoothness)
         free = valid & (p.object_cost - u0 <= total)
         if not free.any():
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
         first = np.nonzero(free)
-        cost = p.object_cost + p.beta * self._distances(frame.xyz[first])
+        ceiling = u0[first] + total[first]
+        distance, rough = self._distances_from(self._tracks, frame.xyz[first], ceiling)
+        cost = p.object_cost + p.beta * distance
         free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
             return labels
         column = np.full((h, w), -1, np.int64)
         column[first] = np.arange(first[0].size)
-        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
+        runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
         keep = np.unique(runs[free])
         free |= ~valid & np.isin(runs, keep[keep > 0])
         n = int(free.sum())
@@ -347,21 +338,26 @@ class Tracker:
         unary = np.zeros((len(self._tracks) + 1, n))
         unary[0] = u0[where]
         known = column[where]  # invalid pixels have no column: no data cost either way
-        unary[1:, known >= 0] = cost[:, known[known >= 0]]
-        ei, ej, ew = [], [], []
-        for a, b, wt in ties:
-            ia, ib = index[a], index[b]
-            both = (ia >= 0) & (ib >= 0)
-            ei.append(ia[both])
-            ej.append(ib[both])
-            ew.append(wt[both])
-            # a free pixel beside a fixed one pays the tie for any object label
-            for mine, other in ((ia, ib), (ib, ia)):
-                edge = (mine >= 0) & (other < 0)
-                unary[1:] += np.bincount(mine[edge], wt[edge], minlength=n)
-        chosen = _solve_by_parts(
-            unary, np.concatenate(ei), np.concatenate(ej), np.concatenate(ew), total[where]
-        )
+        measured = known >= 0
+        unary[1:, measured] = cost[:, known[measured]]
+        kernels.add_fixed_ties(unary, index, wt)
+        unmeasured = np.zeros((len(self._tracks), n), bool)
+        unmeasured[:, measured] = rough[:, known[measured]]
+
+        def measure(label: int, nodes: I64) -> None:
+            # the exact cost of a track the cut weighs at nodes where it was not measured
+            nodes = nodes[unmeasured[label - 1, nodes]]
+            if nodes.size:
+                k = label - 1
+                pts = frame.xyz[where[0][nodes], where[1][nodes]]
+                exact = p.object_cost + p.beta * self._distances_from([self._tracks[k]], pts)[0][0]
+                unary[label, nodes] = kernels.add_fixed_ties_at(
+                    exact, index, wt, where[0][nodes], where[1][nodes]
+                )
+                unmeasured[k, nodes] = False
+
+        ei, ej, ew = kernels.free_edges(index, wt)
+        chosen = _solve_by_parts(unary, ei, ej, ew, total[where], measure)
         ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
         labels[where] = ids[chosen]
         return labels
@@ -370,18 +366,27 @@ class Tracker:
         """(tracks, N) each point's distance cost from each track's prediction: squared
         Mahalanobis distance in the track's shape, plus the squared distance from its
         predicted surface in units of `surface_sigma_m` (inf beyond any track's reach)."""
+        return self._distances_from(self._tracks, points)[0]
+
+    def _distances_from(
+        self, tracks: list[_Live], points: F64, ceiling: F64 | None = None
+    ) -> tuple[F64, B]:
+        """`_distances` from some tracks; given a `ceiling` per point (the most a label may
+        cost there and still win it), the surface is only measured where the shape's
+        distance alone leaves the cost below it: elsewhere the distance is inf, and marked
+        in the second array."""
         p = self.params
-        reach = p.surface_sigma_m * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
-        out = np.empty((len(self._tracks), len(points)))
-        finite = np.isfinite(points).all(axis=1)
-        for k, t in enumerate(self._tracks):
-            d = points - t.filter.position
-            out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
-            if p.surface_weight > 0:
-                near = np.full(len(points), np.inf)
-                near[finite], _ = cKDTree(t.cloud).query(points[finite], distance_upper_bound=reach)
-                out[k] += p.surface_weight * (near / p.surface_sigma_m) ** 2
-        return np.where(np.isnan(out), np.inf, out)
+        if ceiling is None:
+            ceiling = np.full(len(points), np.inf)
+        clouds, starts, axes = _surfaces(tracks)
+        out: tuple[F64, B] = kernels.track_distances(
+            points, ceiling + CEILING_MARGIN,
+            np.array([t.filter.position for t in tracks]).reshape(-1, 3),
+            np.array([np.linalg.inv(t.shape) for t in tracks]).reshape(-1, 3, 3),
+            clouds, starts, axes, p.object_cost, p.beta, p.surface_weight,
+            p.surface_sigma_m, self._reach,
+        )  # fmt: skip
+        return out
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
@@ -398,16 +403,7 @@ class Tracker:
         """Connected pieces of `body`, cut where neighbours are farther apart than `step_m`
         (default `connect_m`) in 3D; the pixel on the far side of such a step is left out."""
         step = self.params.connect_m if step_m is None else step_m
-        h, w = frame.shape
-        body = body.copy()
-        xyz = frame.xyz
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = _shifted(h, w, dv, du)
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > step**2
-            far_a = jump & (frame.range[a] > frame.range[b])
-            far_b = jump & ~far_a
-            body[a] &= ~far_a
-            body[b] &= ~far_b
+        body = kernels.cut_at_steps(body, frame.xyz, frame.range, step**2)
         pieces, _ = ndimage.label(body)
         return np.asarray(pieces, np.int32)
 
@@ -419,21 +415,27 @@ class Tracker:
         ended: list[int] = []
         keep: list[_Live] = []
         pieces = self._loose(frame, labels) if self.background and self.background.ready else None
+        boxes = ndimage.find_objects(labels)
         for t in self._tracks:
-            mask = labels == t.id
-            n = int(mask.sum())
+            box = boxes[t.id - 1] if t.id <= len(boxes) else None
+            mask = labels[box] == t.id if box is not None else _NONE  # within the box
+            n = int(np.count_nonzero(mask))
             if n >= p.min_pixels:
-                seen = mask
-                entering = _on_border(mask)
+                assert box is not None
+                mask_pts = frame.xyz[box][mask]
+                pts = mask_pts
+                entering = _on_border(box, labels.shape)
                 if pieces is not None and entering:
                     # an object coming into view is bigger than its mask: what stands out
                     # right beside it is the rest of it
-                    near = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
-                    beside = self._continuing(frame, mask, pieces, near[near > 0])
+                    whole_mask = np.zeros(labels.shape, bool)
+                    whole_mask[box] = mask
+                    near = np.unique(pieces[ndimage.binary_dilation(whole_mask, _EIGHT)])
+                    beside = self._continuing(frame, whole_mask, pieces, near[near > 0])
                     if beside.size:
-                        seen = mask | np.isin(pieces, beside)
+                        seen = whole_mask | np.isin(pieces, beside)
                         pieces[seen] = 0
-                pts = frame.xyz[seen]
+                        pts = frame.xyz[seen]
                 m = len(pts)
                 usual = t.usual_pixels
                 # a partial view (occlusion) or a tainted one (something else taken in) is
@@ -448,17 +450,17 @@ class Tracker:
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
-                pts = frame.xyz[mask]
+                pts = mask_pts
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                rows, cols = np.nonzero(mask)
-                bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
+                bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
                 t.last = Track(
                     t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
                     bbox, n, pts.astype(np.float32),
                 )  # fmt: skip
             else:
-                labels[mask] = 0
+                if box is not None:
+                    labels[box][mask] = 0
                 t.measured = False
                 t.hidden_s += dt
                 t.hidden_frames += 1
@@ -545,10 +547,24 @@ class Tracker:
         return born
 
 
-def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
+def _surfaces(tracks: list[_Live]) -> tuple[F64, I64, I64]:
+    """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in one
+    array, each sorted along its widest axis, where each starts, and that axis."""
+    axes = np.array([int(np.argmax(np.ptp(t.cloud, axis=0))) for t in tracks], np.int64)
+    clouds = [
+        t.cloud[np.argsort(t.cloud[:, a], kind="stable")] for t, a in zip(tracks, axes, strict=True)
+    ]
+    starts = np.cumsum([0] + [len(c) for c in clouds]).astype(np.int64)
+    return np.concatenate(clouds).reshape(-1, 3), starts, axes
+
+
+def _solve_by_parts(
+    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[int, I64], None]
+) -> I64:
     """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
     and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part."""
+    node's total ties of the cheapest) take part. `measure(label, nodes)` makes the
+    label's costs exact at those nodes (they may be inf where the label cannot win)."""
     n = unary.shape[1]
     graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
     parts, part_of = connected_components(graph, directed=False)
@@ -569,10 +585,13 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
         can_win[0] = True
         labels = np.nonzero(can_win)[0]
+        for label in labels[1:] if labels.size >= 2 else ():
+            measure(int(label), nodes)
         if labels.size == 2:
             binary.append((nodes, edges, int(labels[1])))
         elif labels.size > 2:
-            problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
+            sub = unary[labels][:, nodes]
+            problem = PottsProblem(sub, local[i[edges]], local[j[edges]], w[edges])
             chosen[nodes] = labels[solve_potts(problem)]
     if binary:
         # every part where one track meets the background: one exact cut for them all
@@ -584,14 +603,3 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
-
-
-def _shifted(h: int, w: int, dv: int, du: int) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
-    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
-    rows_a = slice(0, h - dv)
-    rows_b = slice(dv, h)
-    if du >= 0:
-        cols_a, cols_b = slice(0, w - du), slice(du, w)
-    else:
-        cols_a, cols_b = slice(-du, w), slice(0, w + du)
-    return (rows_a, cols_a), (rows_b, cols_b)

@@ -1,0 +1,77 @@
+"""The compiled tracker (`tofcut.tracker.kernels`) against its numpy reference: the same
+labels and tracks, frame by frame, on emulated scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofcut.sim import open_scene
+from tofcut.sim.crowd import crowd_source
+from tofcut.sim.preview import decode, scene_exposure
+from tofcut.tracker import kernels
+from tofcut.tracker.belt import BeltGeometry
+from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.reference import ReferenceTracker
+from tofcut.tracker.tracker import Tracker
+
+
+def _same_run(source, frames):
+    b = source.belt
+    belt = BeltGeometry(b.point, b.direction, b.normal, b.width_m)
+    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    fast, reference = Tracker(belt=belt), ReferenceTracker(belt=belt)
+    period = source.settings.frame_period * 1e-4
+    tracked = 0
+    for i in range(frames):
+        frame, _ = decode(source, scene_exposure(source, i * period, i))
+        got, want = fast.update(frame, prior), reference.update(frame, prior)
+        np.testing.assert_array_equal(got.labels, want.labels, err_msg=f"frame {i}")
+        assert [t.id for t in got.tracks] == [t.id for t in want.tracks], i
+        for g, w in zip(got.tracks, want.tracks, strict=True):
+            np.testing.assert_array_equal(g.centroid, w.centroid)
+            assert (g.bbox, g.pixels, g.hidden_frames) == (w.bbox, w.pixels, w.hidden_frames)
+        tracked += sum(t.visible for t in got.tracks)
+    return tracked
+
+
+@pytest.mark.parametrize(
+    ("source", "frames", "least"),
+    [(lambda: crowd_source(10), 30, 100), (lambda: open_scene("conveyor", 0), 60, 60)],
+    ids=["crowd-10", "conveyor"],
+)
+def test_the_compiled_tracker_gives_the_reference_labels_and_tracks(source, frames, least):
+    # `least`: enough visible tracks that the cut, not just the empty scene, was compared
+    assert _same_run(source(), frames) >= least
+
+
+def test_surface_distances_are_the_brute_force_minimum():
+    rng = np.random.default_rng(3)
+    cloud = rng.normal(size=(300, 3)) * 0.05
+    points = rng.normal(size=(500, 3)) * 0.08
+    points[0] = np.nan
+    axis = 1
+    clouds = cloud[np.argsort(cloud[:, axis])]
+    inverse = np.linalg.inv(np.cov(cloud.T))
+    distance, rough = kernels.track_distances(
+        points, np.full(len(points), np.inf), np.zeros((1, 3)), inverse[None],
+        clouds, np.array([0, len(cloud)]), np.array([axis]), 8.0, 2.5, 0.2, 0.015, 0.1,
+    )  # fmt: skip
+    near = np.sqrt(((points[:, None, :] - cloud[None]) ** 2).sum(axis=-1).min(axis=1))
+    near[near >= 0.1] = np.inf
+    shape = np.einsum("ni,ij,nj->n", points, inverse, points)
+    want = np.where(np.isnan(shape), np.inf, shape + 0.2 * (near / 0.015) ** 2)
+    np.testing.assert_array_equal(distance[0], want)
+    assert not rough.any()
+    # with a ceiling, points the shape alone prices out are not measured, and marked
+    ceiling = np.full(len(points), 8.0 + 2.5 * np.nanmedian(shape))
+    capped, rough = kernels.track_distances(
+        points, ceiling, np.zeros((1, 3)), inverse[None],
+        clouds, np.array([0, len(cloud)]), np.array([axis]), 8.0, 2.5, 0.2, 0.015, 0.1,
+    )  # fmt: skip
+    out = 8.0 + 2.5 * shape > ceiling
+    assert rough[0].sum() == out.sum() > 100
+    assert np.isinf(capped[0][out]).all()
+    np.testing.assert_array_equal(
+        capped[0][~out & np.isfinite(shape)], want[~out & np.isfinite(shape)]
+    )
