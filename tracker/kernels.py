@@ -121,14 +121,28 @@ def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float
 @numba.njit(cache=True, nogil=True)
 def add_fixed_ties(unary: F64, index: I64, wt: F64) -> None:
     """A free pixel (`index` ≥ 0: its node) beside a fixed one pays the tie for any object
-    label: add each such tie to rows 1.. of `unary`."""
+    label: add each such tie to rows 1.. of `unary`, in the order of `_with_fixed_ties`."""
     h, w = index.shape
+    ties = np.empty(8)
     for v in range(h):
         for u in range(w):
             node = index[v, u]
-            if node >= 0:
-                for label in range(1, unary.shape[0]):
-                    unary[label, node] = _with_fixed_ties(unary[label, node], index, wt, v, u)
+            if node < 0:
+                continue
+            count = 0
+            for k in range(4):
+                dv, du = _DV[k], _DU[k]
+                if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
+                    ties[count] = wt[k, v, u]
+                    count += 1
+                if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
+                    ties[count] = wt[k, v - dv, u - du]
+                    count += 1
+            for label in range(1, unary.shape[0]):
+                value = unary[label, node]
+                for t in range(count):
+                    value += ties[t]
+                unary[label, node] = value
 
 
 @numba.njit(cache=True, nogil=True)
@@ -241,3 +255,70 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float) -> B:
                     else:
                         out[v2, u2] = False
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
+    """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
+    numbered in the order of each part's first node (as scipy's connected_components)."""
+    root = np.arange(n)
+    for e in range(i.size):
+        a, b = i[e], j[e]
+        while root[a] != a:
+            root[a] = root[root[a]]
+            a = root[a]
+        while root[b] != b:
+            root[b] = root[root[b]]
+            b = root[b]
+        if a != b:
+            root[max(a, b)] = min(a, b)
+    part_of = np.empty(n, np.int64)
+    count = 0
+    for v in range(n):
+        r = v
+        while root[r] != r:
+            r = root[r]
+        if r == v:
+            part_of[v] = count
+            count += 1
+        else:
+            part_of[v] = part_of[r]
+    return count, part_of
+
+
+@numba.njit(cache=True, nogil=True)
+def any_by_part(win: B, part_of: I64, count: int) -> B:
+    """(rows, parts): whether any node of each part is True in each row of `win`."""
+    out = np.zeros((win.shape[0], count), np.bool_)
+    for v in range(win.shape[1]):
+        for r in range(win.shape[0]):
+            if win[r, v]:
+                out[r, part_of[v]] = True
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def add_at(target: F64, index: I64, values: F64) -> None:
+    """`np.add.at(target, index, values)`: added one by one, in order."""
+    for e in range(index.size):
+        target[index[e]] += values[e]
+
+
+@numba.njit(cache=True, nogil=True)
+def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
+    """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis (as
+    `track_distances` takes them), and those axes."""
+    out = np.empty_like(clouds)
+    axes = np.zeros(starts.size - 1, np.int64)
+    for k in range(starts.size - 1):
+        cloud = clouds[starts[k] : starts[k + 1]]
+        widest = -1.0
+        for a in range(3):
+            spread = cloud[:, a].max() - cloud[:, a].min()
+            if spread > widest:
+                widest = spread
+                axes[k] = a
+        order = np.argsort(cloud[:, axes[k]])
+        for n in range(order.size):
+            out[starts[k] + n] = cloud[order[n]]
+    return out, axes

@@ -15,6 +15,8 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
+from tofcut.tracker.kernels import add_at
+
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
@@ -63,8 +65,8 @@ def _expand(problem: PottsProblem, labels: I64, alpha: int) -> I64:
     c = w * (alpha != lj)
     # E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q, with D = 0
     unary1 = take - keep
-    np.add.at(unary1, problem.i, c - a)
-    np.add.at(unary1, problem.j, -c)
+    add_at(unary1, problem.i, c - a)
+    add_at(unary1, problem.j, -c)
     g = maxflow.Graph[float](n, problem.i.size)
     nodes = g.add_nodes(n)
     # a node in the sink segment (segment 1) takes α and pays its source capacity

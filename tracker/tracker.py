@@ -21,11 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels
+from tofcut.tracker import kernels, stats
 from tofcut.tracker.background import BackgroundModel, BackgroundParams
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -144,6 +142,7 @@ class _Candidate:
 
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
+_NO_POINTS = np.zeros((0, 3))
 
 
 def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
@@ -165,11 +164,11 @@ def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> 
     """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
     object reaches down to the belt, though the camera sees mostly its top: the spread
     along the belt's normal is at least that of a solid from the belt to its top."""
-    cov = np.cov(points.T) if len(points) > 3 else np.zeros((3, 3))
+    cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
     cov = cov + np.eye(3) * floor_m**2
     if belt is not None and len(points):
         n = belt.normal
-        top = float(np.percentile((points - belt.point) @ n, 90))
+        top = stats.percentile((points - belt.point) @ n, 90)
         missing = top * top / 3.0 - float(n @ cov @ n)
         if missing > 0:
             cov = cov + missing * np.outer(n, n)
@@ -344,17 +343,16 @@ class Tracker:
         unmeasured = np.zeros((len(self._tracks), n), bool)
         unmeasured[:, measured] = rough[:, known[measured]]
 
-        def measure(label: int, nodes: I64) -> None:
-            # the exact cost of a track the cut weighs at nodes where it was not measured
-            nodes = nodes[unmeasured[label - 1, nodes]]
-            if nodes.size:
-                k = label - 1
-                pts = frame.xyz[where[0][nodes], where[1][nodes]]
-                exact = p.object_cost + p.beta * self._distances_from([self._tracks[k]], pts)[0][0]
-                unary[label, nodes] = kernels.add_fixed_ties_at(
-                    exact, index, wt, where[0][nodes], where[1][nodes]
-                )
-                unmeasured[k, nodes] = False
+        def measure(tracks: I64, nodes: I64) -> None:
+            # the exact cost of each track the cut weighs at nodes where it was not measured
+            need = unmeasured[tracks - 1, nodes]
+            for label in np.unique(tracks[need]):
+                at = nodes[need & (tracks == label)]
+                v, u = where[0][at], where[1][at]
+                one = [self._tracks[label - 1]]
+                exact = p.object_cost + p.beta * self._distances_from(one, frame.xyz[v, u])[0][0]
+                unary[label, at] = kernels.add_fixed_ties_at(exact, index, wt, v, u)
+                unmeasured[label - 1, at] = False
 
         ei, ej, ew = kernels.free_edges(index, wt)
         chosen = _solve_by_parts(unary, ei, ej, ew, total[where], measure)
@@ -550,54 +548,49 @@ class Tracker:
 def _surfaces(tracks: list[_Live]) -> tuple[F64, I64, I64]:
     """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in one
     array, each sorted along its widest axis, where each starts, and that axis."""
-    axes = np.array([int(np.argmax(np.ptp(t.cloud, axis=0))) for t in tracks], np.int64)
-    clouds = [
-        t.cloud[np.argsort(t.cloud[:, a], kind="stable")] for t, a in zip(tracks, axes, strict=True)
-    ]
-    starts = np.cumsum([0] + [len(c) for c in clouds]).astype(np.int64)
-    return np.concatenate(clouds).reshape(-1, 3), starts, axes
+    starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
+    clouds = np.concatenate([t.cloud for t in tracks]).reshape(-1, 3) if tracks else _NO_POINTS
+    out: tuple[F64, I64] = kernels.sort_surfaces(clouds, starts)
+    return out[0], starts, out[1]
 
 
 def _solve_by_parts(
-    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[int, I64], None]
+    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[I64, I64], None]
 ) -> I64:
     """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
     and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part. `measure(label, nodes)` makes the
-    label's costs exact at those nodes (they may be inf where the label cannot win)."""
+    node's total ties of the cheapest) take part. `measure(labels, nodes)` makes those
+    labels' costs exact at those nodes (they may be inf where the label cannot win)."""
     n = unary.shape[1]
-    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
-    parts, part_of = connected_components(graph, directed=False)
+    count, part_of = kernels.parts(n, i, j)
     order = np.argsort(part_of, kind="stable")
-    bounds = np.searchsorted(part_of[order], np.arange(parts + 1))
+    bounds = np.searchsorted(part_of[order], np.arange(count + 1))
     edge_part = part_of[i]
     edge_order = np.argsort(edge_part, kind="stable")
-    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(parts + 1))
+    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(count + 1))
     local = np.empty(n, np.int64)
     chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
     cheapest = unary.min(axis=0)
-    binary: list[tuple[I64, I64, int]] = []
-    for k in np.unique(edge_part):
+    can_win = kernels.any_by_part(unary <= cheapest + ties, part_of, count)
+    can_win[0] = True
+    joined = np.zeros(count, bool)
+    joined[edge_part] = True
+    contenders = can_win.sum(axis=0)
+    for k in np.nonzero(joined & (contenders > 2))[0]:
         nodes = order[bounds[k] : bounds[k + 1]]
         edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
         local[nodes] = np.arange(nodes.size)
-        sub = unary[:, nodes]
-        can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
-        can_win[0] = True
-        labels = np.nonzero(can_win)[0]
-        for label in labels[1:] if labels.size >= 2 else ():
-            measure(int(label), nodes)
-        if labels.size == 2:
-            binary.append((nodes, edges, int(labels[1])))
-        elif labels.size > 2:
-            sub = unary[labels][:, nodes]
-            problem = PottsProblem(sub, local[i[edges]], local[j[edges]], w[edges])
-            chosen[nodes] = labels[solve_potts(problem)]
-    if binary:
+        labels = np.nonzero(can_win[:, k])[0]
+        measure(np.repeat(labels[1:], nodes.size), np.tile(nodes, labels.size - 1))
+        problem = PottsProblem(unary[labels][:, nodes], local[i[edges]], local[j[edges]], w[edges])
+        chosen[nodes] = labels[solve_potts(problem)]
+    binary = joined & (contenders == 2)
+    if binary.any():
         # every part where one track meets the background: one exact cut for them all
-        nodes = np.concatenate([b[0] for b in binary])
-        edges = np.concatenate([b[1] for b in binary])
-        track = np.concatenate([np.full(b[0].size, b[2]) for b in binary])
+        nodes = order[binary[part_of[order]]]
+        edges = edge_order[binary[edge_part[edge_order]]]
+        track = (np.argmax(can_win[1:], axis=0) + 1)[part_of[nodes]]
+        measure(track, nodes)
         local[nodes] = np.arange(nodes.size)
         pair = np.stack([unary[0, nodes], unary[track, nodes]])
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
