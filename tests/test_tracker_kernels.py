@@ -32,6 +32,10 @@ def _same_run(source, frames):
             np.testing.assert_array_equal(g.centroid, w.centroid)
             assert (g.bbox, g.pixels, g.hidden_frames) == (w.bbox, w.pixels, w.hidden_frames)
         tracked += sum(t.visible for t in got.tracks)
+    for name in ("range", "sigma", "known", "_farther", "_farther_min", "_unknown_seen"):
+        np.testing.assert_array_equal(
+            getattr(fast.background, name), getattr(reference.background, name), err_msg=name
+        )
     return tracked
 
 

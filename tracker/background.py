@@ -16,6 +16,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker import kernels
 from tofcut.tracker.belt import BeltGeometry
 
 F64 = npt.NDArray[np.float64]
@@ -127,30 +128,8 @@ class BackgroundModel:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
         range once the pixel has read farther for `reveal_frames` frames in a row."""
         p = self.params
-        usable = free & frame.valid
-        with np.errstate(invalid="ignore"):
-            deviation = frame.range - self.range
-            farther = usable & (deviation > p.noise_factor * self.sigma)
-        self._farther = np.where(farther, self._farther + 1, 0)
-        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
-        unknown = usable & ~self.known
-        self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
-        newly = self._unknown_seen >= p.reveal_frames
-        revealed = self._farther >= p.reveal_frames
-        # follow only what looks like the same scenery; anything farther off than
-        # BLEND_SIGMAS is an object's edge or a flying pixel and would widen the noise
-        # estimate until real objects no longer stand out of it
-        blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
-        self.range[blend] += p.rate * deviation[blend]
-        var = self.sigma[blend] ** 2
-        # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
-        var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
-        self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
-        # back to the nearest of the farther readings: flying pixels only ever read too far
-        self.range[revealed] = self._farther_min[revealed]
-        self.range[newly] = frame.range[newly]
-        jump = revealed | newly
-        self._farther[jump] = 0
-        self._farther_min[jump] = np.inf
-        self._unknown_seen[newly] = 0
-        self.known |= newly
+        kernels.follow_scene(
+            self.range, self.sigma, self.known, self._farther, self._farther_min,
+            self._unknown_seen, frame.range, free & frame.valid, p.noise_factor, p.rate,
+            p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS, BLEND_VARIANCE_SHARE,
+        )  # fmt: skip

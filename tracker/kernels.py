@@ -27,29 +27,35 @@ FACTORS = np.array([d[2] for d in NEIGHBOURS])
 
 
 @numba.njit(cache=True, nogil=True)
-def tie_exponents(xyz: F64, valid: B, two_sigma2: float) -> F64:
-    """(4, H, W) −|D_p − D_q|² / 2σ² of each pixel p and its neighbour q in each direction
-    of NEIGHBOURS (0 where q is off the image or either pixel is invalid)."""
+def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
+    """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
+    NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
+    direction is in that list (−1: not there)."""
     h, w = valid.shape
-    out = np.zeros((4, h, w))
+    slot = np.full((4, h, w), -1, np.int64)
+    out = np.empty(4 * h * w)
+    n = 0
     for k in range(4):
         dv, du = _DV[k], _DU[k]
         for v in range(h - dv):
             for u in range(max(0, -du), min(w, w - du)):
                 v2, u2 = v + dv, u + du
-                if valid[v, u] and valid[v2, u2]:
+                if (near[v, u] or near[v2, u2]) and valid[v, u] and valid[v2, u2]:
                     a = xyz[v, u, 0] - xyz[v2, u2, 0]
                     b = xyz[v, u, 1] - xyz[v2, u2, 1]
                     c = xyz[v, u, 2] - xyz[v2, u2, 2]
-                    out[k, v, u] = -(a**2 + b**2 + c**2) / two_sigma2
-    return out
+                    out[n] = -(a**2 + b**2 + c**2) / two_sigma2
+                    slot[k, v, u] = n
+                    n += 1
+    return out[:n], slot
 
 
 @numba.njit(cache=True, nogil=True)
-def tie_weights(exps: F64, valid: B, smoothness: float) -> tuple[F64, F64]:
-    """Eq. (7)'s Potts weight of every neighbour pair, (4, H, W) by the first pixel and
-    direction (λ·factor where either pixel is invalid), and each pixel's sum of weights,
-    added up in the order right, left, down, up, down-right, up-left, down-left, up-right."""
+def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
+    """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
+    the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
+    pixel is invalid), and the sum of each `near` pixel's weights, added up in the order
+    right, left, down, up, down-right, up-left, down-left, up-right (0 elsewhere)."""
     h, w = valid.shape
     wt = np.zeros((4, h, w))
     for k in range(4):
@@ -57,13 +63,15 @@ def tie_weights(exps: F64, valid: B, smoothness: float) -> tuple[F64, F64]:
         dv, du = _DV[k], _DU[k]
         for v in range(h - dv):
             for u in range(max(0, -du), min(w, w - du)):
-                if valid[v, u] and valid[v + dv, u + du]:
-                    wt[k, v, u] = sf * exps[k, v, u]
-                else:
+                if slot[k, v, u] >= 0:
+                    wt[k, v, u] = sf * exps[slot[k, v, u]]
+                elif near[v, u] or near[v + dv, u + du]:
                     wt[k, v, u] = sf
     total = np.zeros((h, w))
     for v in range(h):
         for u in range(w):
+            if not near[v, u]:
+                continue
             acc = 0.0
             for k in range(4):
                 dv, du = _DV[k], _DU[k]
@@ -76,32 +84,24 @@ def tie_weights(exps: F64, valid: B, smoothness: float) -> tuple[F64, F64]:
 
 
 @numba.njit(cache=True, nogil=True)
-def free_edges(index: I64, wt: F64) -> tuple[I64, I64, F64]:
+def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64]:
     """Edges (i, j, weight) between neighbouring free pixels (`index` ≥ 0: their node
-    number), direction by direction, pixels in row-major order."""
+    number; node n at (rows[n], cols[n]), in row-major order), direction by direction."""
     h, w = index.shape
+    ei = np.empty(4 * rows.size, np.int64)
+    ej = np.empty(4 * rows.size, np.int64)
+    ew = np.empty(4 * rows.size)
     n = 0
     for k in range(4):
         dv, du = _DV[k], _DU[k]
-        for v in range(h - dv):
-            for u in range(max(0, -du), min(w, w - du)):
-                if index[v, u] >= 0 and index[v + dv, u + du] >= 0:
-                    n += 1
-    ei = np.empty(n, np.int64)
-    ej = np.empty(n, np.int64)
-    ew = np.empty(n)
-    n = 0
-    for k in range(4):
-        dv, du = _DV[k], _DU[k]
-        for v in range(h - dv):
-            for u in range(max(0, -du), min(w, w - du)):
-                a, b = index[v, u], index[v + dv, u + du]
-                if a >= 0 and b >= 0:
-                    ei[n] = a
-                    ej[n] = b
-                    ew[n] = wt[k, v, u]
-                    n += 1
-    return ei, ej, ew
+        for a in range(rows.size):
+            v2, u2 = rows[a] + dv, cols[a] + du
+            if v2 < h and 0 <= u2 < w and index[v2, u2] >= 0:
+                ei[n] = a
+                ej[n] = index[v2, u2]
+                ew[n] = wt[k, rows[a], cols[a]]
+                n += 1
+    return ei[:n], ej[:n], ew[:n]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -119,30 +119,28 @@ def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float
 
 
 @numba.njit(cache=True, nogil=True)
-def add_fixed_ties(unary: F64, index: I64, wt: F64) -> None:
-    """A free pixel (`index` ≥ 0: its node) beside a fixed one pays the tie for any object
-    label: add each such tie to rows 1.. of `unary`, in the order of `_with_fixed_ties`."""
+def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> None:
+    """A free pixel (`index` ≥ 0: its node; node n at (rows[n], cols[n])) beside a fixed
+    one pays the tie for any object label: add each such tie to rows 1.. of `unary`, in the
+    order of `_with_fixed_ties`."""
     h, w = index.shape
     ties = np.empty(8)
-    for v in range(h):
-        for u in range(w):
-            node = index[v, u]
-            if node < 0:
-                continue
-            count = 0
-            for k in range(4):
-                dv, du = _DV[k], _DU[k]
-                if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
-                    ties[count] = wt[k, v, u]
-                    count += 1
-                if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
-                    ties[count] = wt[k, v - dv, u - du]
-                    count += 1
-            for label in range(1, unary.shape[0]):
-                value = unary[label, node]
-                for t in range(count):
-                    value += ties[t]
-                unary[label, node] = value
+    for node in range(rows.size):
+        v, u = rows[node], cols[node]
+        count = 0
+        for k in range(4):
+            dv, du = _DV[k], _DU[k]
+            if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
+                ties[count] = wt[k, v, u]
+                count += 1
+            if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
+                ties[count] = wt[k, v - dv, u - du]
+                count += 1
+        for label in range(1, unary.shape[0]):
+            value = unary[label, node]
+            for t in range(count):
+                value += ties[t]
+            unary[label, node] = value
 
 
 @numba.njit(cache=True, nogil=True)
@@ -154,11 +152,32 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     return out
 
 
+BUCKET = 8
+"""Points of a sorted surface cloud boxed together for `_nearest` to pass over at once."""
+
+
 @numba.njit(cache=True, nogil=True)
-def _nearest(cloud: F64, axis: int, q: F64, bound2: float) -> float:
-    """Distance from q to the nearest point of `cloud` (sorted along `axis`) if its square
-    is below bound2, else inf; points are skipped only where the gap along `axis` alone
-    already reaches the best square so far, so the minimum is the brute-force one."""
+def _boxes(cloud: F64) -> F64:
+    """(buckets, 2, 3) the low and high corner of each run of BUCKET points of `cloud`."""
+    m = cloud.shape[0]
+    out = np.empty(((m + BUCKET - 1) // BUCKET, 2, 3))
+    for b in range(out.shape[0]):
+        for a in range(3):
+            lo, hi = np.inf, -np.inf
+            for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
+                lo = min(lo, cloud[i, a])
+                hi = max(hi, cloud[i, a])
+            out[b, 0, a] = lo
+            out[b, 1, a] = hi
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest(cloud: F64, boxes: F64, axis: int, q: F64, bound2: float) -> float:
+    """Distance from q to the nearest point of `cloud` (sorted along `axis`, boxed by
+    `_boxes`) if its square is below bound2, else inf. A box is passed over only where its
+    distance from q, a lower bound of each of its points' (rounding included), already
+    reaches the best square so far, so the minimum is the brute-force one."""
     best = bound2
     m = cloud.shape[0]
     lo, hi = 0, m
@@ -168,19 +187,26 @@ def _nearest(cloud: F64, axis: int, q: F64, bound2: float) -> float:
             lo = mid + 1
         else:
             hi = mid
-    for step in (-1, 1):
-        i = lo - 1 if step < 0 else lo
-        while 0 <= i < m:
-            gap = q[axis] - cloud[i, axis]
-            if gap * gap >= best:
-                break
-            a = q[0] - cloud[i, 0]
-            b = q[1] - cloud[i, 1]
-            c = q[2] - cloud[i, 2]
-            d = a * a + b * b + c * c
-            if d < best:
-                best = d
-            i += step
+    start = min(lo // BUCKET, boxes.shape[0] - 1)
+    for step in (1, -1):
+        b = start if step > 0 else start - 1
+        while 0 <= b < boxes.shape[0]:
+            gap = boxes[b, 0, axis] - q[axis] if step > 0 else q[axis] - boxes[b, 1, axis]
+            if gap > 0 and gap * gap >= best:
+                break  # so are all boxes farther on along the axis
+            floor = 0.0
+            for a in range(3):
+                g = max(boxes[b, 0, a] - q[a], q[a] - boxes[b, 1, a], 0.0)
+                floor += g * g
+            if floor < best:
+                for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
+                    x = q[0] - cloud[i, 0]
+                    y = q[1] - cloud[i, 1]
+                    z = q[2] - cloud[i, 2]
+                    d = x * x + y * y + z * z
+                    if d < best:
+                        best = d
+            b += step
     return math.sqrt(best) if best < bound2 else np.inf
 
 
@@ -210,16 +236,26 @@ def track_distances(
     out = np.empty((tracks, n_points))
     rough = np.zeros((tracks, n_points), np.bool_)
     bound2 = reach * reach
-    d = np.empty(3)
     for k in range(tracks):
         cloud = clouds[starts[k] : starts[k + 1]]
+        boxes = _boxes(cloud)
+        cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
+        m = inverses[k]
+        m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
+        m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
         for n in range(n_points):
-            for i in range(3):
-                d[i] = points[n, i] - centres[k, i]
+            x, y, z = points[n, 0] - cx, points[n, 1] - cy, points[n, 2] - cz
+            # term by term in einsum's order: i outer, j inner
             shape = 0.0
-            for i in range(3):
-                for j in range(3):
-                    shape += d[i] * inverses[k, i, j] * d[j]
+            shape += x * m00 * x
+            shape += x * m01 * y
+            shape += x * m02 * z
+            shape += y * m10 * x
+            shape += y * m11 * y
+            shape += y * m12 * z
+            shape += z * m20 * x
+            shape += z * m21 * y
+            shape += z * m22 * z
             value = shape
             if surface_weight > 0:
                 alone = object_cost + beta * shape
@@ -230,7 +266,7 @@ def track_distances(
                 near = np.inf
                 q = points[n]
                 if np.isfinite(q[0]) and np.isfinite(q[1]) and np.isfinite(q[2]):
-                    near = _nearest(cloud, axes[k], q, bound2)
+                    near = _nearest(cloud, boxes, axes[k], q, bound2)
                 value = shape + surface_weight * (near / surface_sigma) ** 2
             out[k, n] = np.inf if np.isnan(value) else value
     return out, rough
@@ -322,3 +358,50 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
         for n in range(order.size):
             out[starts[k] + n] = cloud[order[n]]
     return out, axes
+
+
+@numba.njit(cache=True, nogil=True)
+def follow_scene(
+    model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
+    unknown_seen: npt.NDArray[np.int32], seen: F64, usable: B, noise_factor: float,
+    rate: float, min_sigma: float, reveal_frames: int, blend_sigmas: float, variance_share: float,
+) -> None:  # fmt: skip
+    """`BackgroundModel.update`'s per-pixel arithmetic, in place, in one pass (see there)."""
+    h, w = model.shape
+    for v in range(h):
+        for u in range(w):
+            deviation = seen[v, u] - model[v, u]
+            use = usable[v, u]
+            if use and deviation > noise_factor * sigma[v, u]:
+                farther[v, u] += 1
+                farther_min[v, u] = min(farther_min[v, u], seen[v, u])
+            else:
+                farther[v, u] = 0
+                farther_min[v, u] = np.inf
+            if use and not known[v, u]:
+                unknown_seen[v, u] += 1
+            else:
+                unknown_seen[v, u] = 0
+            newly = unknown_seen[v, u] >= reveal_frames
+            revealed = farther[v, u] >= reveal_frames
+            # follow only what looks like the same scenery; anything farther off than
+            # blend_sigmas is an object's edge or a flying pixel and would widen the noise
+            # estimate until real objects no longer stand out of it
+            if use and known[v, u] and abs(deviation) <= blend_sigmas * sigma[v, u]:
+                model[v, u] += rate * deviation
+                var = sigma[v, u] ** 2
+                # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
+                var += rate * (deviation**2 / variance_share - var)
+                spread = math.sqrt(var)
+                sigma[v, u] = min_sigma if spread < min_sigma else spread
+            # back to the nearest of the farther readings: flying pixels only ever read too far
+            if revealed:
+                model[v, u] = farther_min[v, u]
+            if newly:
+                model[v, u] = seen[v, u]
+            if revealed or newly:
+                farther[v, u] = 0
+                farther_min[v, u] = np.inf
+            if newly:
+                unknown_seen[v, u] = 0
+                known[v, u] = True

@@ -12,6 +12,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker.background import BLEND_SIGMAS, BLEND_VARIANCE_SHARE, BackgroundModel
 from tofcut.tracker.kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.tracker import Tracker
@@ -22,8 +23,39 @@ I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]
 
 
+class ReferenceBackground(BackgroundModel):
+    """The empty-scene model following the scene in plain numpy."""
+
+    def update(self, frame: Frame, free: B) -> None:
+        p = self.params
+        usable = free & frame.valid
+        with np.errstate(invalid="ignore"):
+            deviation = frame.range - self.range
+            farther = usable & (deviation > p.noise_factor * self.sigma)
+        self._farther = np.where(farther, self._farther + 1, 0)
+        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
+        unknown = usable & ~self.known
+        self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
+        newly = self._unknown_seen >= p.reveal_frames
+        revealed = self._farther >= p.reveal_frames
+        blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
+        self.range[blend] += p.rate * deviation[blend]
+        var = self.sigma[blend] ** 2
+        var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
+        self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
+        self.range[revealed] = self._farther_min[revealed]
+        self.range[newly] = frame.range[newly]
+        jump = revealed | newly
+        self._farther[jump] = 0
+        self._farther_min[jump] = np.inf
+        self._unknown_seen[newly] = 0
+        self.known |= newly
+
+
 class ReferenceTracker(Tracker):
     """The tracker with every per-pixel step in plain numpy over the whole frame."""
+
+    background_model = ReferenceBackground
 
     def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
         """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the

@@ -178,6 +178,8 @@ def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> 
 class Tracker:
     """Frames in, tracks out. Feed every frame in order with `update`."""
 
+    background_model: type[BackgroundModel] = BackgroundModel
+
     def __init__(
         self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
     ) -> None:
@@ -192,6 +194,8 @@ class Tracker:
         p = self.params
         self._reach = p.surface_sigma_m * math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         """Farthest a track's surface can be from a point it could still win."""
+        self._most_ties = 2 * p.smoothness * float(kernels.FACTORS.sum())
+        """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
         """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
@@ -208,7 +212,7 @@ class Tracker:
         p = self.params
         h, w = frame.shape
         if self.background is None:
-            self.background = BackgroundModel((h, w), p.background)
+            self.background = self.background_model((h, w), p.background)
         dt = 0.0
         if self._last_time_us is not None:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
@@ -312,8 +316,11 @@ class Tracker:
         valid = frame.valid
         u0 = self._background_cost(frame)
         u0[~valid] = 0.0
-        exps = kernels.tie_exponents(frame.xyz, valid, 2 * p.smoothness_sigma_m**2)
-        wt, total = kernels.tie_weights(np.exp(exps), valid, p.smoothness)
+        # ties only where they can matter: where the pixel's own ties could free it, and
+        # around invalid pixels (which a run of them may free)
+        near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
+        exps, slot = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
+        wt, total = kernels.tie_weights(np.exp(exps), slot, valid, near, p.smoothness)
         free = valid & (p.object_cost - u0 <= total)
         if not free.any():
             return labels
@@ -339,7 +346,7 @@ class Tracker:
         known = column[where]  # invalid pixels have no column: no data cost either way
         measured = known >= 0
         unary[1:, measured] = cost[:, known[measured]]
-        kernels.add_fixed_ties(unary, index, wt)
+        kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
         unmeasured = np.zeros((len(self._tracks), n), bool)
         unmeasured[:, measured] = rough[:, known[measured]]
 
@@ -354,7 +361,7 @@ class Tracker:
                 unary[label, at] = kernels.add_fixed_ties_at(exact, index, wt, v, u)
                 unmeasured[label - 1, at] = False
 
-        ei, ej, ew = kernels.free_edges(index, wt)
+        ei, ej, ew = kernels.free_edges(index, wt, where[0], where[1])
         chosen = _solve_by_parts(unary, ei, ej, ew, total[where], measure)
         ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
         labels[where] = ids[chosen]
