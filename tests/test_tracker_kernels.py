@@ -54,12 +54,11 @@ def test_surface_distances_are_the_brute_force_minimum():
     cloud = rng.normal(size=(300, 3)) * 0.05
     points = rng.normal(size=(500, 3)) * 0.08
     points[0] = np.nan
-    axis = 1
-    clouds = cloud[np.argsort(cloud[:, axis])]
+    clouds, axes = kernels.sort_surfaces(cloud, np.array([0, len(cloud)]))
     inverse = np.linalg.inv(np.cov(cloud.T))
     distance, rough = kernels.track_distances(
         points, np.full(len(points), np.inf), np.zeros((1, 3)), inverse[None],
-        clouds, np.array([0, len(cloud)]), np.array([axis]), 8.0, 2.5, 0.2, 0.015, 0.1,
+        clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, 0.015, 0.1,
     )  # fmt: skip
     near = np.sqrt(((points[:, None, :] - cloud[None]) ** 2).sum(axis=-1).min(axis=1))
     near[near >= 0.1] = np.inf
@@ -71,7 +70,7 @@ def test_surface_distances_are_the_brute_force_minimum():
     ceiling = np.full(len(points), 8.0 + 2.5 * np.nanmedian(shape))
     capped, rough = kernels.track_distances(
         points, ceiling, np.zeros((1, 3)), inverse[None],
-        clouds, np.array([0, len(cloud)]), np.array([axis]), 8.0, 2.5, 0.2, 0.015, 0.1,
+        clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, 0.015, 0.1,
     )  # fmt: skip
     out = 8.0 + 2.5 * shape > ceiling
     assert rough[0].sum() == out.sum() > 100

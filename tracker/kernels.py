@@ -153,7 +153,9 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
 
 
 BUCKET = 8
-"""Points of a sorted surface cloud boxed together for `_nearest` to pass over at once."""
+"""Points of a surface cloud boxed together for `_nearest` to pass over at once."""
+SLAB = 32
+"""Points in a slab: a run of the cloud sorted along its widest axis (see `sort_surfaces`)."""
 
 
 @numba.njit(cache=True, nogil=True)
@@ -173,40 +175,54 @@ def _boxes(cloud: F64) -> F64:
 
 
 @numba.njit(cache=True, nogil=True)
-def _nearest(cloud: F64, boxes: F64, axis: int, q: F64, bound2: float) -> float:
-    """Distance from q to the nearest point of `cloud` (sorted along `axis`, boxed by
-    `_boxes`) if its square is below bound2, else inf. A box is passed over only where its
-    distance from q, a lower bound of each of its points' (rounding included), already
-    reaches the best square so far, so the minimum is the brute-force one."""
+def _slabs(boxes: F64, axis: int) -> F64:
+    """(slabs, 2) the low and high end along `axis` of each slab's boxes."""
+    per = SLAB // BUCKET
+    out = np.empty(((boxes.shape[0] + per - 1) // per, 2))
+    for s in range(out.shape[0]):
+        out[s, 0] = boxes[s * per : (s + 1) * per, 0, axis].min()
+        out[s, 1] = boxes[s * per : (s + 1) * per, 1, axis].max()
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _nearest(cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float) -> float:
+    """Distance from q to the nearest point of `cloud` (in slabs along `axis`, as
+    `sort_surfaces` leaves it, boxed by `_boxes` and `_slabs`) if its square is below
+    bound2, else inf. Slabs are walked outward from q along the axis until their gap alone
+    reaches the best square so far; a box is passed over where its distance from q, a
+    lower bound of each of its points' (rounding included), does. So the minimum is the
+    brute-force one."""
     best = bound2
     m = cloud.shape[0]
-    lo, hi = 0, m
-    while lo < hi:
+    per = SLAB // BUCKET
+    lo, hi = 0, slabs.shape[0] - 1
+    while lo < hi:  # the first slab reaching up to q along the axis (or the last)
         mid = (lo + hi) // 2
-        if cloud[mid, axis] < q[axis]:
+        if slabs[mid, 1] < q[axis]:
             lo = mid + 1
         else:
             hi = mid
-    start = min(lo // BUCKET, boxes.shape[0] - 1)
     for step in (1, -1):
-        b = start if step > 0 else start - 1
-        while 0 <= b < boxes.shape[0]:
-            gap = boxes[b, 0, axis] - q[axis] if step > 0 else q[axis] - boxes[b, 1, axis]
+        s = lo if step > 0 else lo - 1
+        while 0 <= s < slabs.shape[0]:
+            gap = slabs[s, 0] - q[axis] if step > 0 else q[axis] - slabs[s, 1]
             if gap > 0 and gap * gap >= best:
-                break  # so are all boxes farther on along the axis
-            floor = 0.0
-            for a in range(3):
-                g = max(boxes[b, 0, a] - q[a], q[a] - boxes[b, 1, a], 0.0)
-                floor += g * g
-            if floor < best:
-                for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
-                    x = q[0] - cloud[i, 0]
-                    y = q[1] - cloud[i, 1]
-                    z = q[2] - cloud[i, 2]
-                    d = x * x + y * y + z * z
-                    if d < best:
-                        best = d
-            b += step
+                break  # so are all slabs farther on along the axis
+            for b in range(s * per, min(boxes.shape[0], (s + 1) * per)):
+                floor = 0.0
+                for a in range(3):
+                    g = max(boxes[b, 0, a] - q[a], q[a] - boxes[b, 1, a], 0.0)
+                    floor += g * g
+                if floor < best:
+                    for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
+                        x = q[0] - cloud[i, 0]
+                        y = q[1] - cloud[i, 1]
+                        z = q[2] - cloud[i, 2]
+                        d = x * x + y * y + z * z
+                        if d < best:
+                            best = d
+            s += step
     return math.sqrt(best) if best < bound2 else np.inf
 
 
@@ -239,6 +255,7 @@ def track_distances(
     for k in range(tracks):
         cloud = clouds[starts[k] : starts[k + 1]]
         boxes = _boxes(cloud)
+        slabs = _slabs(boxes, axes[k])
         cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
         m = inverses[k]
         m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
@@ -266,7 +283,7 @@ def track_distances(
                 near = np.inf
                 q = points[n]
                 if np.isfinite(q[0]) and np.isfinite(q[1]) and np.isfinite(q[2]):
-                    near = _nearest(cloud, boxes, axes[k], q, bound2)
+                    near = _nearest(cloud, boxes, slabs, axes[k], q, bound2)
                 value = shape + surface_weight * (near / surface_sigma) ** 2
             out[k, n] = np.inf if np.isnan(value) else value
     return out, rough
@@ -342,8 +359,9 @@ def add_at(target: F64, index: I64, values: F64) -> None:
 
 @numba.njit(cache=True, nogil=True)
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
-    """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis (as
-    `track_distances` takes them), and those axes."""
+    """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
+    slab of SLAB points along the widest of the other two (as `track_distances` takes
+    them), and the first axes."""
     out = np.empty_like(clouds)
     axes = np.zeros(starts.size - 1, np.int64)
     for k in range(starts.size - 1):
@@ -357,6 +375,16 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
         order = np.argsort(cloud[:, axes[k]])
         for n in range(order.size):
             out[starts[k] + n] = cloud[order[n]]
+        # within each slab, along the next widest axis: its boxes are then small both ways
+        for s in range(starts[k], starts[k + 1], SLAB):
+            slab = out[s : min(starts[k + 1], s + SLAB)]
+            across, widest = 0, -1.0
+            for a in range(3):
+                spread = slab[:, a].max() - slab[:, a].min()
+                if a != axes[k] and spread > widest:
+                    widest = spread
+                    across = a
+            slab[:] = slab[np.argsort(slab[:, across])]
     return out, axes
 
 
