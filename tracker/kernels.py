@@ -240,17 +240,17 @@ def track_distances(
     surface_weight: float,
     surface_sigma: float,
     reach: float,
-) -> tuple[F64, B]:
+) -> tuple[F64, F64]:
     """(tracks, N) each point's distance from each track: (D−µ)ᵀΣ⁻¹(D−µ) in the track's
     shape (summed as numpy's einsum sums it) plus surface_weight·(d/surface_sigma)², d the
     distance from the track's surface (`clouds[starts[k]:starts[k+1]]`, sorted along
     `axes[k]`; inf beyond `reach`); inf where not a number. Where a track's cost from its
     shape alone, object_cost + β·shape, is above the point's `ceiling`, the surface is not
-    looked at: the distance is inf, and marked in the second array when the shape's was
-    finite."""
+    looked at: the distance is inf, and the second array holds that cost from the shape
+    alone (a lower bound of the point's cost; nan where the distance was measured)."""
     tracks, n_points = centres.shape[0], points.shape[0]
     out = np.empty((tracks, n_points))
-    rough = np.zeros((tracks, n_points), np.bool_)
+    rough = np.full((tracks, n_points), np.nan)
     bound2 = reach * reach
     for k in range(tracks):
         cloud = clouds[starts[k] : starts[k + 1]]
@@ -278,7 +278,8 @@ def track_distances(
                 alone = object_cost + beta * shape
                 if not alone <= ceiling[n]:
                     out[k, n] = np.inf
-                    rough[k, n] = np.isfinite(alone)
+                    if np.isfinite(alone):
+                        rough[k, n] = alone
                     continue
                 near = np.inf
                 q = points[n]

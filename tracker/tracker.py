@@ -143,6 +143,7 @@ class _Candidate:
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
+_NO_NODES = np.zeros(0, np.int64)
 
 
 def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
@@ -191,6 +192,8 @@ class Tracker:
         self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
         self._next_id = 1
         self._last_time_us: int | None = None
+        self._sorted: dict[int, tuple[F64, F64, int]] = {}
+        """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
         p = self.params
         self._reach = p.surface_sigma_m * math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         """Farthest a track's surface can be from a point it could still win."""
@@ -228,6 +231,8 @@ class Tracker:
             t.cloud = t.cloud + (t.filter.position - before)
         labels = self._segment(frame)
         found, ended = self._measure(frame, labels, dt)
+        for gone in ended:
+            self._sorted.pop(gone, None)
         born += found
         if self.background.ready:
             self.background.update(frame, labels == 0)
@@ -327,7 +332,7 @@ class Tracker:
         # the 3D distance term can only add cost: now fix what no track can win
         first = np.nonzero(free)
         ceiling = u0[first] + total[first]
-        distance, rough = self._distances_from(self._tracks, frame.xyz[first], ceiling)
+        distance, floor = self._distances_from(self._tracks, frame.xyz[first], ceiling)
         cost = p.object_cost + p.beta * distance
         free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
@@ -347,22 +352,40 @@ class Tracker:
         measured = known >= 0
         unary[1:, measured] = cost[:, known[measured]]
         kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
-        unmeasured = np.zeros((len(self._tracks), n), bool)
-        unmeasured[:, measured] = rough[:, known[measured]]
+        # where a track's surface was not measured, its cost from the shape alone
+        least = np.full((len(self._tracks), n), np.nan)
+        least[:, measured] = floor[:, known[measured]]
+        ties = total[where]
 
         def measure(tracks: I64, nodes: I64) -> None:
-            # the exact cost of each track the cut weighs at nodes where it was not measured
-            need = unmeasured[tracks - 1, nodes]
-            for label in np.unique(tracks[need]):
-                at = nodes[need & (tracks == label)]
-                v, u = where[0][at], where[1][at]
-                one = [self._tracks[label - 1]]
-                exact = p.object_cost + p.beta * self._distances_from(one, frame.xyz[v, u])[0][0]
-                unary[label, at] = kernels.add_fixed_ties_at(exact, index, wt, v, u)
-                unmeasured[label - 1, at] = False
+            # A node never takes a label that costs more than its ties above every label
+            # it could hold: it would do better back with that one whatever its neighbours
+            # hold; such a label's cost decides no cut (it may stay inf). Others are made
+            # exact, until the labels left are all of that kind.
+            while True:
+                exact = np.isnan(least[tracks - 1, nodes])
+                top = unary[0].copy()
+                np.maximum.at(top, nodes[exact], unary[tracks[exact], nodes[exact]])
+                rough = ~exact
+                need = rough.copy()
+                need[rough] = (
+                    least[tracks[rough] - 1, nodes[rough]]
+                    <= top[nodes[rough]] + ties[nodes[rough]] + CEILING_MARGIN
+                )
+                if not need.any():
+                    return
+                for label in np.unique(tracks[need]):
+                    at = nodes[need & (tracks == label)]
+                    v, u = where[0][at], where[1][at]
+                    one = [self._tracks[label - 1]]
+                    value = (
+                        p.object_cost + p.beta * self._distances_from(one, frame.xyz[v, u])[0][0]
+                    )
+                    unary[label, at] = kernels.add_fixed_ties_at(value, index, wt, v, u)
+                    least[label - 1, at] = np.nan
 
         ei, ej, ew = kernels.free_edges(index, wt, where[0], where[1])
-        chosen = _solve_by_parts(unary, ei, ej, ew, total[where], measure)
+        chosen = _solve_by_parts(unary, ei, ej, ew, ties, measure)
         ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
         labels[where] = ids[chosen]
         return labels
@@ -383,7 +406,7 @@ class Tracker:
         p = self.params
         if ceiling is None:
             ceiling = np.full(len(points), np.inf)
-        clouds, starts, axes = _surfaces(tracks)
+        clouds, starts, axes = self._surfaces(tracks)
         out: tuple[F64, B] = kernels.track_distances(
             points, ceiling + CEILING_MARGIN,
             np.array([t.filter.position for t in tracks]).reshape(-1, 3),
@@ -392,6 +415,21 @@ class Tracker:
             p.surface_sigma_m, self._reach,
         )  # fmt: skip
         return out
+
+    def _surfaces(self, tracks: list[_Live]) -> tuple[F64, I64, I64]:
+        """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
+        one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
+        axis each is sorted along (kept per track while its cloud stays the same)."""
+        for t in tracks:
+            kept = self._sorted.get(t.id)
+            if kept is None or kept[0] is not t.cloud:
+                cloud, axis = kernels.sort_surfaces(t.cloud, np.array([0, len(t.cloud)]))
+                self._sorted[t.id] = (t.cloud, cloud, int(axis[0]))
+        starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
+        if not tracks:
+            return _NO_POINTS, starts, np.zeros(0, np.int64)
+        clouds = np.concatenate([self._sorted[t.id][1] for t in tracks])
+        return clouds, starts, np.array([self._sorted[t.id][2] for t in tracks], np.int64)
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
@@ -552,22 +590,14 @@ class Tracker:
         return born
 
 
-def _surfaces(tracks: list[_Live]) -> tuple[F64, I64, I64]:
-    """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in one
-    array, each sorted along its widest axis, where each starts, and that axis."""
-    starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
-    clouds = np.concatenate([t.cloud for t in tracks]).reshape(-1, 3) if tracks else _NO_POINTS
-    out: tuple[F64, I64] = kernels.sort_surfaces(clouds, starts)
-    return out[0], starts, out[1]
-
-
 def _solve_by_parts(
     unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[I64, I64], None]
 ) -> I64:
     """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
     and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part. `measure(labels, nodes)` makes those
-    labels' costs exact at those nodes (they may be inf where the label cannot win)."""
+    node's total ties of the cheapest) take part. `measure(labels, nodes)` is given the
+    labels and nodes of the parts with more than two labels, before they are cut (their
+    costs may be inf where the label cannot win)."""
     n = unary.shape[1]
     count, part_of = kernels.parts(n, i, j)
     order = np.argsort(part_of, kind="stable")
@@ -583,21 +613,27 @@ def _solve_by_parts(
     joined = np.zeros(count, bool)
     joined[edge_part] = True
     contenders = can_win.sum(axis=0)
-    for k in np.nonzero(joined & (contenders > 2))[0]:
-        nodes = order[bounds[k] : bounds[k + 1]]
-        edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
-        local[nodes] = np.arange(nodes.size)
-        labels = np.nonzero(can_win[:, k])[0]
-        measure(np.repeat(labels[1:], nodes.size), np.tile(nodes, labels.size - 1))
-        problem = PottsProblem(unary[labels][:, nodes], local[i[edges]], local[j[edges]], w[edges])
-        chosen[nodes] = labels[solve_potts(problem)]
+    multi = [
+        (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
+         np.nonzero(can_win[:, k])[0])
+        for k in np.nonzero(joined & (contenders > 2))[0]
+    ]  # fmt: skip
+    # every label's costs exact wherever a cut of more than two labels may weigh them;
+    # with two, a cost left inf is one the track cannot win whatever the neighbours hold
+    measure(
+        np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi] + [_NO_NODES]),
+        np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi] + [_NO_NODES]),
+    )
+    for part, edges, labels in multi:
+        local[part] = np.arange(part.size)
+        problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
+        chosen[part] = labels[solve_potts(problem)]
     binary = joined & (contenders == 2)
-    if binary.any():
+    nodes = order[binary[part_of[order]]]
+    if nodes.size:
         # every part where one track meets the background: one exact cut for them all
-        nodes = order[binary[part_of[order]]]
-        edges = edge_order[binary[edge_part[edge_order]]]
         track = (np.argmax(can_win[1:], axis=0) + 1)[part_of[nodes]]
-        measure(track, nodes)
+        edges = edge_order[binary[edge_part[edge_order]]]
         local[nodes] = np.arange(nodes.size)
         pair = np.stack([unary[0, nodes], unary[track, nodes]])
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
