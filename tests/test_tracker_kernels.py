@@ -65,15 +65,18 @@ def test_surface_distances_are_the_brute_force_minimum():
     shape = np.einsum("ni,ij,nj->n", points, inverse, points)
     want = np.where(np.isnan(shape), np.inf, shape + 0.2 * (near / 0.015) ** 2)
     np.testing.assert_array_equal(distance[0], want)
-    assert not rough.any()
-    # with a ceiling, points the shape alone prices out are not measured, and marked
+    assert np.isnan(rough).all()
+    # with a ceiling, points the shape alone prices out are not measured: their cost from
+    # the shape alone comes back instead
     ceiling = np.full(len(points), 8.0 + 2.5 * np.nanmedian(shape))
     capped, rough = kernels.track_distances(
         points, ceiling, np.zeros((1, 3)), inverse[None],
         clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, 0.015, 0.1,
     )  # fmt: skip
     out = 8.0 + 2.5 * shape > ceiling
-    assert rough[0].sum() == out.sum() > 100
+    assert out.sum() > 100
+    np.testing.assert_array_equal(rough[0][out], (8.0 + 2.5 * shape)[out])
+    assert np.isnan(rough[0][~out]).all()
     assert np.isinf(capped[0][out]).all()
     np.testing.assert_array_equal(
         capped[0][~out & np.isfinite(shape)], want[~out & np.isfinite(shape)]
