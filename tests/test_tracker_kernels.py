@@ -81,3 +81,25 @@ def test_surface_distances_are_the_brute_force_minimum():
     np.testing.assert_array_equal(
         capped[0][~out & np.isfinite(shape)], want[~out & np.isfinite(shape)]
     )
+
+
+def test_expansion_terms_are_the_numpy_ones():
+    rng = np.random.default_rng(4)
+    unary = rng.random((3, 40)) * 5
+    unary[1, :5] = np.inf  # a label a node cannot take
+    i, j = np.triu_indices(40, 1)
+    keep = rng.random(i.size) < 0.1
+    i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
+    w = rng.random(i.size)
+    labels = rng.choice([0, 2], 40).astype(np.int64)
+    for alpha in range(3):
+        source, sink, pair = kernels.expansion_terms(unary, labels, alpha, i, j, w)
+        idx = np.arange(40)
+        li, lj = labels[i], labels[j]
+        a, b, c = w * (li != lj), w * (li != alpha), w * (alpha != lj)
+        unary1 = unary[alpha, idx] - unary[labels, idx]
+        np.add.at(unary1, i, c - a)
+        np.add.at(unary1, j, -c)
+        np.testing.assert_array_equal(source, np.maximum(unary1, 0.0))
+        np.testing.assert_array_equal(sink, np.maximum(-unary1, 0.0))
+        np.testing.assert_array_equal(pair, b + c - a)

@@ -352,13 +352,6 @@ def any_by_part(win: B, part_of: I64, count: int) -> B:
 
 
 @numba.njit(cache=True, nogil=True)
-def add_at(target: F64, index: I64, values: F64) -> None:
-    """`np.add.at(target, index, values)`: added one by one, in order."""
-    for e in range(index.size):
-        target[index[e]] += values[e]
-
-
-@numba.njit(cache=True, nogil=True)
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
     slab of SLAB points along the widest of the other two (as `track_distances` takes
@@ -434,3 +427,38 @@ def follow_scene(
             if newly:
                 unknown_seen[v, u] = 0
                 known[v, u] = True
+
+
+@numba.njit(cache=True, nogil=True)
+def expansion_terms(
+    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64
+) -> tuple[F64, F64, F64]:
+    """The α-expansion move's graph from `labels` (see `multicut._expand`): each node's
+    capacity from the source and to the sink, and each edge's capacity from i to j.
+
+    With x_p = 1 for "take α", an edge's E(x_p, x_q) has A = E00, B = E01, C = E10 and
+    D = E11 = 0, so E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q."""
+    n = unary.shape[1]
+    unary1 = np.empty(n)
+    for p in range(n):
+        unary1[p] = unary[alpha, p] - unary[labels[p], p]
+    pair = np.empty(i.size)
+    for e in range(i.size):
+        li, lj = labels[i[e]], labels[j[e]]
+        a = w[e] * (1.0 if li != lj else 0.0)
+        b = w[e] * (1.0 if li != alpha else 0.0)
+        c = w[e] * (1.0 if alpha != lj else 0.0)
+        unary1[i[e]] += c - a
+        pair[e] = b + c - a
+    for e in range(j.size):
+        li, lj = labels[i[e]], labels[j[e]]
+        c = w[e] * (1.0 if alpha != lj else 0.0)
+        unary1[j[e]] += -c
+    source = np.empty(n)
+    sink = np.empty(n)
+    for p in range(n):
+        x = unary1[p]
+        source[p] = x if (x >= 0.0 or x != x) else 0.0
+        y = -x
+        sink[p] = y if (y >= 0.0 or y != y) else 0.0
+    return source, sink, pair

@@ -15,7 +15,7 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.kernels import add_at
+from tofcut.tracker.kernels import expansion_terms
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -55,23 +55,13 @@ class PottsProblem:
 def _expand(problem: PottsProblem, labels: I64, alpha: int) -> I64:
     """The best α-expansion move from `labels`: each node keeps its label or takes α."""
     n = problem.nodes
-    idx = np.arange(n)
-    keep = problem.unary[labels, idx]
-    take = problem.unary[alpha, idx]
-    # binary x_p = 1 means "take α"; pairwise E(x_p, x_q) with A=E00, B=E01, C=E10, D=E11
-    li, lj, w = labels[problem.i], labels[problem.j], problem.w
-    a = w * (li != lj)
-    b = w * (li != alpha)
-    c = w * (alpha != lj)
-    # E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q, with D = 0
-    unary1 = take - keep
-    add_at(unary1, problem.i, c - a)
-    add_at(unary1, problem.j, -c)
+    source, sink, pair = expansion_terms(
+        problem.unary, labels, alpha, problem.i, problem.j, problem.w
+    )
     g = maxflow.Graph[float](n, problem.i.size)
     nodes = g.add_nodes(n)
     # a node in the sink segment (segment 1) takes α and pays its source capacity
-    g.add_grid_tedges(nodes, np.maximum(unary1, 0.0), np.maximum(-unary1, 0.0))
-    pair = b + c - a
+    g.add_grid_tedges(nodes, source, sink)
     if pair.size:
         g.add_edges(nodes[problem.i], nodes[problem.j], pair, np.zeros_like(pair))
     g.maxflow()
