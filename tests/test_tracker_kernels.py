@@ -16,11 +16,19 @@ from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
 
 
+def _kernels():
+    return {name: f for name, f in vars(kernels).items() if getattr(f, "signatures", None)}
+
+
 def _same_run(source, frames):
     b = source.belt
     belt = BeltGeometry(b.point, b.direction, b.normal, b.width_m)
     prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
     fast, reference = Tracker(belt=belt), ReferenceTracker(belt=belt)
+    # the tracker warms its kernels up: a live run must not stall on loading one for new
+    # argument types mid-stream
+    warm = {name: list(f.signatures) for name, f in _kernels().items()}
+    assert len(warm) >= 12
     period = source.settings.frame_period * 1e-4
     tracked = 0
     for i in range(frames):
@@ -32,6 +40,7 @@ def _same_run(source, frames):
             np.testing.assert_array_equal(g.centroid, w.centroid)
             assert (g.bbox, g.pixels, g.hidden_frames) == (w.bbox, w.pixels, w.hidden_frames)
         tracked += sum(t.visible for t in got.tracks)
+    assert {name: list(f.signatures) for name, f in _kernels().items()} == warm
     for name in ("range", "sigma", "known", "_farther", "_farther_min", "_unknown_seen"):
         np.testing.assert_array_equal(
             getattr(fast.background, name), getattr(reference.background, name), err_msg=name

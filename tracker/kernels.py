@@ -462,3 +462,37 @@ def expansion_terms(
         y = -x
         sink[p] = y if (y >= 0.0 or y != y) else 0.0
     return source, sink, pair
+
+
+def warm_up() -> None:
+    """Load (or compile) every kernel for the argument types the tracker calls it with, so
+    the first frames of a live run do not stall on it (about a second, once per process)."""
+    global _warm
+    if _warm:
+        return
+    f64, i64, yes = np.zeros((2, 2)), np.zeros((2, 2), np.int64), np.ones((2, 2), bool)
+    xyz, wt = np.zeros((2, 2, 3)), np.zeros((4, 2, 2))
+    rows, cols = np.nonzero(yes)  # non-contiguous, as np.nonzero gives them
+    one = np.zeros(1, np.int64)
+    tie_weights(*tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    free_edges(i64, wt, rows, cols)
+    add_fixed_ties(np.zeros((2, 4)), i64, wt, rows, cols)
+    add_fixed_ties_at(np.zeros(1), i64, wt, one, one)
+    points, ceiling = np.zeros((1, 3)), np.zeros(1)
+    starts = np.array([0, 1])
+    cloud, axes = sort_surfaces(points, starts)
+    track_distances(
+        points, ceiling, points, np.eye(3)[None], cloud, starts, axes, 1.0, 1.0, 1.0, 1.0, 1.0
+    )
+    cut_at_steps(yes, xyz, f64, 1.0)
+    parts(1, one, one)
+    any_by_part(yes, np.zeros(2, np.int64), 1)
+    unary = np.zeros((2, 3))
+    for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
+        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1))
+    counts = np.zeros((2, 2), np.int32)
+    follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
+    _warm = True
+
+
+_warm = False

@@ -194,6 +194,7 @@ class Tracker:
         self._last_time_us: int | None = None
         self._sorted: dict[int, tuple[F64, F64, int]] = {}
         """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
+        kernels.warm_up()
         p = self.params
         self._reach = p.surface_sigma_m * math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         """Farthest a track's surface can be from a point it could still win."""
