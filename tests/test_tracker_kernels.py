@@ -9,9 +9,10 @@ import pytest
 from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tracker import kernels
+from tofcut.tracker import kernels, multicut
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
 
@@ -102,7 +103,10 @@ def test_expansion_terms_are_the_numpy_ones():
     w = rng.random(i.size)
     labels = rng.choice([0, 2], 40).astype(np.int64)
     for alpha in range(3):
-        source, sink, pair = kernels.expansion_terms(unary, labels, alpha, i, j, w)
+        every = np.arange(40)
+        source, sink, si, sj, pair = kernels.expansion_terms(unary, labels, alpha, i, j, w, every)
+        np.testing.assert_array_equal(si, i)
+        np.testing.assert_array_equal(sj, j)
         idx = np.arange(40)
         li, lj = labels[i], labels[j]
         a, b, c = w * (li != lj), w * (li != alpha), w * (alpha != lj)
@@ -112,3 +116,24 @@ def test_expansion_terms_are_the_numpy_ones():
         np.testing.assert_array_equal(source, np.maximum(unary1, 0.0))
         np.testing.assert_array_equal(sink, np.maximum(-unary1, 0.0))
         np.testing.assert_array_equal(pair, b + c - a)
+
+
+def test_settled_nodes_left_out_of_the_moves_change_no_cut():
+    rng = np.random.default_rng(5)
+    for labels in (2, 3, 4):
+        for _ in range(20):
+            nodes = 60
+            i, j = np.triu_indices(nodes, 1)
+            keep = rng.random(i.size) < 0.05
+            i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
+            unary = rng.random((labels, nodes)) * rng.choice([0.5, 20.0], (labels, nodes))
+            problem = PottsProblem(unary, i, j, rng.random(i.size))
+            local = multicut._movable(problem, None)
+            assert 0 < (local < 0).sum() < nodes  # some settled, some not
+            # the same moves from the same start, with every node in the graph
+            cheapest = np.argmin(unary, axis=0)
+            assert (solve_potts(problem) == solve_potts(problem, start=cheapest)).all()
+            if labels == 2:
+                every = np.arange(nodes)
+                whole = multicut._expand(problem, np.zeros(nodes, np.int64), 1, every)
+                assert (solve_binary(problem) == whole).all()

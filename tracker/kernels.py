@@ -430,30 +430,71 @@ def follow_scene(
 
 
 @numba.njit(cache=True, nogil=True)
+def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
+    """Nodes whose cheapest label is cheaper than any other by more than all their edges
+    weigh: from there no labelling of their neighbours makes another label pay, so no
+    expansion move ever takes them off it."""
+    n = unary.shape[1]
+    weigh = np.zeros(n)
+    for e in range(i.size):
+        weigh[i[e]] += w[e]
+        weigh[j[e]] += w[e]
+    out = np.zeros(n, np.bool_)
+    for p in range(n):
+        best, second = np.inf, np.inf
+        for label in range(unary.shape[0]):
+            u = unary[label, p]
+            if u < best:
+                best, second = u, best
+            elif u < second:
+                second = u
+        if np.isfinite(best):
+            out[p] = second > best + weigh[p] + 1e-9 * (1.0 + abs(best) + weigh[p])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
 def expansion_terms(
-    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64
-) -> tuple[F64, F64, F64]:
-    """The α-expansion move's graph from `labels` (see `multicut._expand`): each node's
-    capacity from the source and to the sink, and each edge's capacity from i to j.
+    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64
+) -> tuple[F64, F64, I64, I64, F64]:
+    """The α-expansion move's graph from `labels` (see `multicut._expand`) over the nodes
+    that may move (`local` ≥ 0: their number in the graph; the others keep their label):
+    each one's capacity from the source and to the sink, and the edges between them (i, j,
+    capacity from i to j). An edge to a node that keeps its label is a unary term.
 
     With x_p = 1 for "take α", an edge's E(x_p, x_q) has A = E00, B = E01, C = E10 and
     D = E11 = 0, so E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q."""
-    n = unary.shape[1]
+    n = 0
+    for p in range(local.size):
+        n = max(n, local[p] + 1)
     unary1 = np.empty(n)
-    for p in range(n):
-        unary1[p] = unary[alpha, p] - unary[labels[p], p]
+    for p in range(local.size):
+        if local[p] >= 0:
+            unary1[local[p]] = unary[alpha, p] - unary[labels[p], p]
+    ri = np.empty(i.size, np.int64)
+    rj = np.empty(i.size, np.int64)
     pair = np.empty(i.size)
+    m = 0
     for e in range(i.size):
         li, lj = labels[i[e]], labels[j[e]]
         a = w[e] * (1.0 if li != lj else 0.0)
         b = w[e] * (1.0 if li != alpha else 0.0)
         c = w[e] * (1.0 if alpha != lj else 0.0)
-        unary1[i[e]] += c - a
-        pair[e] = b + c - a
-    for e in range(j.size):
-        li, lj = labels[i[e]], labels[j[e]]
-        c = w[e] * (1.0 if alpha != lj else 0.0)
-        unary1[j[e]] += -c
+        p, q = local[i[e]], local[j[e]]
+        if p >= 0 and q >= 0:
+            unary1[p] += c - a
+            ri[m], rj[m] = p, q
+            pair[m] = b + c - a
+            m += 1
+        elif p >= 0:
+            unary1[p] += c - a  # x_q = 0
+        elif q >= 0:
+            unary1[q] += b - a  # x_p = 0
+    for e in range(i.size):
+        p, q = local[i[e]], local[j[e]]
+        if p >= 0 and q >= 0:
+            c = w[e] * (1.0 if alpha != labels[j[e]] else 0.0)
+            unary1[q] += -c
     source = np.empty(n)
     sink = np.empty(n)
     for p in range(n):
@@ -461,7 +502,7 @@ def expansion_terms(
         source[p] = x if (x >= 0.0 or x != x) else 0.0
         y = -x
         sink[p] = y if (y >= 0.0 or y != y) else 0.0
-    return source, sink, pair
+    return source, sink, ri[:m], rj[:m], pair[:m]
 
 
 def warm_up() -> None:
@@ -489,7 +530,8 @@ def warm_up() -> None:
     any_by_part(yes, np.zeros(2, np.int64), 1)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
-        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1))
+        settled(layout, one, one, np.zeros(1))
+        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
     _warm = True

@@ -15,7 +15,7 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.kernels import expansion_terms
+from tofcut.tracker.kernels import expansion_terms, settled
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -52,30 +52,49 @@ class PottsProblem:
         return data + float(self.w[labels[self.i] != labels[self.j]].sum())
 
 
-def _expand(problem: PottsProblem, labels: I64, alpha: int) -> I64:
-    """The best α-expansion move from `labels`: each node keeps its label or takes α."""
-    n = problem.nodes
-    source, sink, pair = expansion_terms(
-        problem.unary, labels, alpha, problem.i, problem.j, problem.w
+def _expand(problem: PottsProblem, labels: I64, alpha: int, local: I64) -> I64:
+    """The best α-expansion move from `labels`: each node keeps its label or takes α; only
+    the nodes with `local` ≥ 0 (their number in the graph) may move."""
+    source, sink, i, j, pair = expansion_terms(
+        problem.unary, labels, alpha, problem.i, problem.j, problem.w, local
     )
-    g = maxflow.Graph[float](n, problem.i.size)
-    nodes = g.add_nodes(n)
+    if source.size == 0:
+        return labels.copy()
+    g = maxflow.Graph[float](source.size, i.size)
+    nodes = g.add_nodes(source.size)
     # a node in the sink segment (segment 1) takes α and pays its source capacity
     g.add_grid_tedges(nodes, source, sink)
     if pair.size:
-        g.add_edges(nodes[problem.i], nodes[problem.j], pair, np.zeros_like(pair))
+        g.add_edges(nodes[i], nodes[j], pair, np.zeros_like(pair))
     g.maxflow()
     take_alpha = g.get_grid_segments(nodes).astype(bool)
     out = labels.copy()
-    out[take_alpha] = alpha
+    out[np.nonzero(local >= 0)[0][take_alpha]] = alpha
     return out
+
+
+def _movable(problem: PottsProblem, start: I64 | None) -> I64:
+    """Each node's number among those an expansion may move (−1 for the others): from each
+    node's cheapest label, a node settled on it (`kernels.settled`) never moves, and the
+    graph of every move is the smaller for leaving it out."""
+    move = ~settled(problem.unary, problem.i, problem.j, problem.w)
+    if start is not None:
+        move[:] = True
+    local = np.full(problem.nodes, -1, np.int64)
+    local[move] = np.arange(int(move.sum()))
+    return local
 
 
 def solve_binary(problem: PottsProblem) -> I64:
     """The exact minimum of a two-label problem: one min cut."""
     if problem.labels != 2:
         raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
-    return _expand(problem, np.zeros(problem.nodes, np.int64), 1)
+    local = _movable(problem, None)
+    # one move from all background: what is settled is on its label from the start
+    start = np.zeros(problem.nodes, np.int64)
+    settled = local < 0
+    start[settled] = np.argmin(problem.unary[:, settled], axis=0)
+    return _expand(problem, start, 1, local)
 
 
 def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int = 4) -> I64:
@@ -84,11 +103,12 @@ def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int
     labels = np.argmin(problem.unary, axis=0).astype(np.int64) if start is None else start.copy()
     if problem.nodes == 0:
         return labels
+    local = _movable(problem, start)
     best = problem.energy(labels)
     for _ in range(max_sweeps):
         improved = False
         for alpha in range(problem.labels):
-            moved = _expand(problem, labels, alpha)
+            moved = _expand(problem, labels, alpha, local)
             e = problem.energy(moved)
             if e < best - 1e-9 * max(1.0, abs(best)):
                 labels, best, improved = moved, e, True
