@@ -34,6 +34,7 @@ from tofcut.tracker.tracks import Track, TrackedFrame
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
+I32 = npt.NDArray[np.int32]
 
 SHAPE_FLOOR_M = 0.01
 """No track's shape is thinner than this (1σ) in any direction."""
@@ -152,6 +153,14 @@ def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
     return bool(
         rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
     )
+
+
+def _beside(pieces: npt.NDArray[np.int32], mask: B, box: tuple[slice, slice]) -> I32:
+    """`pieces[binary_dilation(mask, _EIGHT)]`, from the mask's box and a pixel around it."""
+    rows = slice(max(box[0].start - 1, 0), box[0].stop + 1)
+    cols = slice(max(box[1].start - 1, 0), box[1].stop + 1)
+    out: I32 = pieces[rows, cols][ndimage.binary_dilation(mask[rows, cols], _EIGHT)]
+    return out
 
 
 def _subsample(points: F64, n: int) -> F64:
@@ -474,7 +483,7 @@ class Tracker:
                     # right beside it is the rest of it
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
-                    near = np.unique(pieces[ndimage.binary_dilation(whole_mask, _EIGHT)])
+                    near = np.unique(_beside(pieces, whole_mask, box))
                     beside = self._continuing(frame, whole_mask, pieces, near[near > 0])
                     if beside.size:
                         seen = whole_mask | np.isin(pieces, beside)
