@@ -109,6 +109,8 @@ def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int
         improved = False
         for alpha in range(problem.labels):
             moved = _expand(problem, labels, alpha, local)
+            if np.array_equal(moved, labels):
+                continue  # the same labels: the same energy, no better
             e = problem.energy(moved)
             if e < best - 1e-9 * max(1.0, abs(best)):
                 labels, best, improved = moved, e, True
