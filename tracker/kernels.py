@@ -1,10 +1,12 @@
 """The tracker's per-pixel loops, compiled (numba, one thread): neighbour ties, the graph of
-the pixels left free, distances in a track's shape, and the 3D steps that split surfaces.
+the pixels left free, distances from the tracks, the 3D steps that split surfaces, the
+background model's arithmetic, and the graphs of the α-expansion moves.
 
 Each kernel does the same floating-point operations in the same order as the numpy
-expressions it replaces (`tofcut.tracker.reference` holds those), so the tracker's output
-does not change. The one operation numba would round differently, `exp` (numpy has its
-own vectorised one), is left to numpy: `tie_exponents` and `tie_weights` go either side.
+expressions it replaces (`tofcut.tracker.reference` holds those), with numpy's rules for
+division by zero, so the tracker's output does not change. The one operation numba would
+round differently, `exp` (numpy has its own vectorised one), is left to numpy:
+`tie_exponents` and `tie_weights` go either side.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ _DU = np.array([d[1] for d in NEIGHBOURS], np.int64)
 FACTORS = np.array([d[2] for d in NEIGHBOURS])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
     """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
     NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
@@ -50,7 +52,7 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, 
     return out[:n], slot
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
     """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
     the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
@@ -83,7 +85,7 @@ def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> t
     return wt, total
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64]:
     """Edges (i, j, weight) between neighbouring free pixels (`index` ≥ 0: their node
     number; node n at (rows[n], cols[n]), in row-major order), direction by direction."""
@@ -104,7 +106,7 @@ def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64
     return ei[:n], ej[:n], ew[:n]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float:
     """`value` plus the tie of pixel (v, u) to each fixed neighbour, added one by one in the
     order of `tie_weights`' sums."""
@@ -118,7 +120,7 @@ def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float
     return value
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> None:
     """A free pixel (`index` ≥ 0: its node; node n at (rows[n], cols[n])) beside a fixed
     one pays the tie for any object label: add each such tie to rows 1.. of `unary`, in the
@@ -143,7 +145,7 @@ def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> Non
             unary[label, node] = value
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64:
     """`add_fixed_ties` for one label's costs `values` at the pixels (vs, us)."""
     out = np.empty_like(values)
@@ -158,7 +160,7 @@ SLAB = 32
 """Points in a slab: a run of the cloud sorted along its widest axis (see `sort_surfaces`)."""
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _boxes(cloud: F64) -> F64:
     """(buckets, 2, 3) the low and high corner of each run of BUCKET points of `cloud`."""
     m = cloud.shape[0]
@@ -174,7 +176,7 @@ def _boxes(cloud: F64) -> F64:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _slabs(boxes: F64, axis: int) -> F64:
     """(slabs, 2) the low and high end along `axis` of each slab's boxes."""
     per = SLAB // BUCKET
@@ -185,7 +187,7 @@ def _slabs(boxes: F64, axis: int) -> F64:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _nearest(cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float) -> float:
     """Distance from q to the nearest point of `cloud` (in slabs along `axis`, as
     `sort_surfaces` leaves it, boxed by `_boxes` and `_slabs`) if its square is below
@@ -226,7 +228,7 @@ def _nearest(cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: floa
     return math.sqrt(best) if best < bound2 else np.inf
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def track_distances(
     points: F64,
     ceiling: F64,
@@ -290,7 +292,7 @@ def track_distances(
     return out, rough
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float) -> B:
     """`body` less every pixel on the far side of a 3D step of more than √step2 to its right
     or lower neighbour (of a step, the pixel with the larger range is the far one)."""
@@ -311,7 +313,7 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float) -> B:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
     """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
     numbered in the order of each part's first node (as scipy's connected_components)."""
@@ -340,7 +342,7 @@ def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
     return count, part_of
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def any_by_part(win: B, part_of: I64, count: int) -> B:
     """(rows, parts): whether any node of each part is True in each row of `win`."""
     out = np.zeros((win.shape[0], count), np.bool_)
@@ -351,7 +353,7 @@ def any_by_part(win: B, part_of: I64, count: int) -> B:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
     slab of SLAB points along the widest of the other two (as `track_distances` takes
@@ -382,7 +384,7 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     return out, axes
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def follow_scene(
     model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
     unknown_seen: npt.NDArray[np.int32], seen: F64, usable: B, noise_factor: float,
@@ -429,7 +431,7 @@ def follow_scene(
                 known[v, u] = True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
     """Nodes whose cheapest label is cheaper than any other by more than all their edges
     weigh: from there no labelling of their neighbours makes another label pay, so no
@@ -453,7 +455,7 @@ def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def expansion_terms(
     unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64
 ) -> tuple[F64, F64, I64, I64, F64]:
@@ -505,6 +507,43 @@ def expansion_terms(
     return source, sink, ri[:m], rj[:m], pair[:m]
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def background_cost(
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, deadband: float, cap: float,
+    unknown: float,
+) -> F64:  # fmt: skip
+    """Each pixel's cost for the background (see `Tracker._background_cost`): half the
+    square of how far it stands in front of the scenery, in noise sigmas, less the
+    deadband, at most `cap`; `unknown` where the scenery is not known."""
+    h, w = model.shape
+    out = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            z = (model[v, u] - seen[v, u]) / sigma[v, u] if valid[v, u] and known[v, u] else 0.0
+            z = z - deadband
+            z = z if (z >= 0.0 or z != z) else 0.0
+            cost = 0.5 * z * z
+            cost = cost if (cost <= cap or cost != cost) else cap
+            out[v, u] = cost if known[v, u] else unknown
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def standing_out(
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, labels: npt.NDArray[np.uint16],
+    noise_factor: float, min_height: float,
+) -> B:  # fmt: skip
+    """`BackgroundModel.standing_out` where `labels` is 0 (what no track took)."""
+    h, w = model.shape
+    out = np.zeros((h, w), np.bool_)
+    for v in range(h):
+        for u in range(w):
+            if labels[v, u] == 0 and valid[v, u] and known[v, u]:
+                nearer = model[v, u] - seen[v, u]
+                out[v, u] = nearer > noise_factor * sigma[v, u] and nearer > min_height
+    return out
+
+
 def warm_up() -> None:
     """Load (or compile) every kernel for the argument types the tracker calls it with, so
     the first frames of a live run do not stall on it (about a second, once per process)."""
@@ -532,6 +571,8 @@ def warm_up() -> None:
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))
         expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one)
+    background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
+    standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
     _warm = True

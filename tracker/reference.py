@@ -140,6 +140,22 @@ class ReferenceTracker(Tracker):
                 out[k] += p.surface_weight * (near / p.surface_sigma_m) ** 2
         return np.where(np.isnan(out), np.inf, out)
 
+    def _background_cost(self, frame: Frame) -> F64:
+        p = self.params
+        bg = self.background
+        assert bg is not None
+        if not bg.ready:
+            return np.full(frame.shape, p.unknown_cost)
+        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
+        cost = np.minimum(0.5 * z * z, p.background_cap)
+        return np.where(bg.known, cost, p.unknown_cost)
+
+    def _loose(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> npt.NDArray[np.int32]:
+        bg = self.background
+        assert bg is not None
+        body = bg.standing_out(frame) & (labels == 0)
+        return self._pieces(frame, body)
+
     def _pieces(self, frame: Frame, body: B, step_m: float | None = None) -> npt.NDArray[np.int32]:
         step = self.params.connect_m if step_m is None else step_m
         h, w = frame.shape

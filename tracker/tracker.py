@@ -309,9 +309,11 @@ class Tracker:
         assert bg is not None
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
-        cost = np.minimum(0.5 * z * z, p.background_cap)
-        return np.where(bg.known, cost, p.unknown_cost)
+        cost: F64 = kernels.background_cost(
+            bg.range, bg.sigma, bg.known, frame.range, frame.valid, p.deadband,
+            p.background_cap, p.unknown_cost,
+        )  # fmt: skip
+        return cost
 
     def _segment(self, frame: Frame) -> npt.NDArray[np.uint16]:
         """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
@@ -349,9 +351,10 @@ class Tracker:
             return labels
         column = np.full((h, w), -1, np.int64)
         column[first] = np.arange(first[0].size)
-        runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
-        keep = np.unique(runs[free])
-        free |= ~valid & np.isin(runs, keep[keep > 0])
+        if not valid.all():
+            runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
+            keep = np.unique(runs[free])
+            free |= ~valid & np.isin(runs, keep[keep > 0])
         n = int(free.sum())
         index = np.full((h, w), -1, np.int64)
         index[free] = np.arange(n)
@@ -449,7 +452,11 @@ class Tracker:
         heights come apart; one object's pixels stay together)."""
         bg = self.background
         assert bg is not None
-        body = bg.standing_out(frame) & (labels == 0)
+        q = bg.params
+        body = kernels.standing_out(
+            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
+            q.min_height_m,
+        )  # fmt: skip
         return self._pieces(frame, body)
 
     def _pieces(self, frame: Frame, body: B, step_m: float | None = None) -> npt.NDArray[np.int32]:
