@@ -32,23 +32,33 @@ FACTORS = np.array([d[2] for d in NEIGHBOURS])
 def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
     """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
     NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
-    direction is in that list (−1: not there)."""
+    direction is in that list (−1: either is invalid; unset where neither is near)."""
     h, w = valid.shape
-    slot = np.full((4, h, w), -1, np.int64)
+    slot = np.empty((4, h, w), np.int64)
     out = np.empty(4 * h * w)
     n = 0
-    for k in range(4):
-        dv, du = _DV[k], _DU[k]
-        for v in range(h - dv):
-            for u in range(max(0, -du), min(w, w - du)):
-                v2, u2 = v + dv, u + du
-                if (near[v, u] or near[v2, u2]) and valid[v, u] and valid[v2, u2]:
-                    a = xyz[v, u, 0] - xyz[v2, u2, 0]
-                    b = xyz[v, u, 1] - xyz[v2, u2, 1]
-                    c = xyz[v, u, 2] - xyz[v2, u2, 2]
-                    out[n] = -(a**2 + b**2 + c**2) / two_sigma2
-                    slot[k, v, u] = n
-                    n += 1
+    for v0 in range(h):
+        for u0 in range(w):
+            if not near[v0, u0]:
+                continue
+            for k in range(4):
+                dv, du = _DV[k], _DU[k]
+                for side in range(2):  # the pair where (v0, u0) is first, then second
+                    v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
+                    v2, u2 = v + dv, u + du
+                    if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
+                        continue
+                    if side == 1 and near[v, u]:
+                        continue  # done from there
+                    if valid[v, u] and valid[v2, u2]:
+                        a = xyz[v, u, 0] - xyz[v2, u2, 0]
+                        b = xyz[v, u, 1] - xyz[v2, u2, 1]
+                        c = xyz[v, u, 2] - xyz[v2, u2, 2]
+                        out[n] = -(a**2 + b**2 + c**2) / two_sigma2
+                        slot[k, v, u] = n
+                        n += 1
+                    else:
+                        slot[k, v, u] = -1
     return out[:n], slot
 
 
@@ -56,20 +66,26 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, 
 def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
     """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
     the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
-    pixel is invalid), and the sum of each `near` pixel's weights, added up in the order
-    right, left, down, up, down-right, up-left, down-left, up-right (0 elsewhere)."""
+    pixel is invalid; unset elsewhere), and the sum of each `near` pixel's weights, added
+    up in the order right, left, down, up, down-right, up-left, down-left, up-right (0
+    elsewhere)."""
     h, w = valid.shape
-    wt = np.zeros((4, h, w))
-    for k in range(4):
-        sf = smoothness * FACTORS[k]
-        dv, du = _DV[k], _DU[k]
-        for v in range(h - dv):
-            for u in range(max(0, -du), min(w, w - du)):
-                if slot[k, v, u] >= 0:
-                    wt[k, v, u] = sf * exps[slot[k, v, u]]
-                elif near[v, u] or near[v + dv, u + du]:
-                    wt[k, v, u] = sf
+    wt = np.empty((4, h, w))
     total = np.zeros((h, w))
+    for v0 in range(h):
+        for u0 in range(w):
+            if not near[v0, u0]:
+                continue
+            for k in range(4):
+                sf = smoothness * FACTORS[k]
+                dv, du = _DV[k], _DU[k]
+                for side in range(2):
+                    v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
+                    v2, u2 = v + dv, u + du
+                    if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
+                        continue
+                    s = slot[k, v, u]
+                    wt[k, v, u] = sf * exps[s] if s >= 0 else sf
     for v in range(h):
         for u in range(w):
             if not near[v, u]:
@@ -302,6 +318,8 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float) -> B:
         for v in range(h - dv):
             for u in range(w - du):
                 v2, u2 = v + dv, u + du
+                if not (body[v, u] or body[v2, u2]):
+                    continue  # nothing to leave out
                 a = xyz[v, u, 0] - xyz[v2, u2, 0]
                 b = xyz[v, u, 1] - xyz[v2, u2, 1]
                 c = xyz[v, u, 2] - xyz[v2, u2, 2]
