@@ -12,6 +12,7 @@ from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tracker import kernels, multicut
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
@@ -137,3 +138,30 @@ def test_settled_nodes_left_out_of_the_moves_change_no_cut():
                 every = np.arange(nodes)
                 whole = multicut._expand(problem, np.zeros(nodes, np.int64), 1, every)
                 assert (solve_binary(problem) == whole).all()
+
+
+def test_the_filter_update_takes_exactly_what_the_matrix_form_multiplies_out():
+    rng = np.random.default_rng(6)
+    see = {"position": np.eye(6)[:3], "velocity": np.eye(6)[3:]}
+    for _ in range(200):
+        fast = ConstantVelocity(rng.normal(size=3), MotionParams(), rng.normal(size=3))
+        x, p = fast.x.copy(), fast.P.copy()
+        for _ in range(3):
+            z, belt = rng.normal(size=3), rng.normal(size=3)
+            fast.predict(0.02)
+            fast.correct(z)
+            fast.follow_belt(VelocityPrior(belt, np.eye(3) * 4e-4, True))
+            f = np.eye(6)
+            f[:3, 3:] = np.eye(3) * 0.02
+            q = np.kron(
+                np.array([[0.02**4 / 4, 0.02**3 / 2], [0.02**3 / 2, 0.02**2]]) * 0.25, np.eye(3)
+            )
+            x, p = f @ x, f @ p @ f.T + q
+            for h, value, r in (
+                (see["position"], z, np.eye(3) * 0.01**2),
+                (see["velocity"], belt, np.eye(3) * 4e-4),
+            ):
+                k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+                x, p = x + k @ (value - h @ x), (np.eye(6) - k @ h) @ p
+        np.testing.assert_array_equal(fast.x, x)
+        np.testing.assert_array_equal(fast.P, p)

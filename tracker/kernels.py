@@ -391,14 +391,21 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
             out[starts[k] + n] = cloud[order[n]]
         # within each slab, along the next widest axis: its boxes are then small both ways
         for s in range(starts[k], starts[k + 1], SLAB):
-            slab = out[s : min(starts[k + 1], s + SLAB)]
+            end = min(starts[k + 1], s + SLAB)
             across, widest = 0, -1.0
             for a in range(3):
-                spread = slab[:, a].max() - slab[:, a].min()
+                spread = out[s:end, a].max() - out[s:end, a].min()
                 if a != axes[k] and spread > widest:
                     widest = spread
                     across = a
-            slab[:] = slab[np.argsort(slab[:, across])]
+            for n in range(s + 1, end):  # insertion sort: a slab is short
+                x, y, z = out[n, 0], out[n, 1], out[n, 2]
+                key = out[n, across]
+                m = n - 1
+                while m >= s and out[m, across] > key:
+                    out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = out[m, 0], out[m, 1], out[m, 2]
+                    m -= 1
+                out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = x, y, z
     return out, axes
 
 
