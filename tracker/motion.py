@@ -48,7 +48,7 @@ def _transition(dt: float, accel_sigma: float) -> tuple[F64, F64]:
     q = accel_sigma**2
     block = np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]) * q
     f.flags.writeable = False
-    qm = np.kron(block, np.eye(3))
+    qm = np.asarray(np.kron(block, np.eye(3)), np.float64)
     qm.flags.writeable = False
     return f, qm
 

@@ -16,7 +16,7 @@ def covariance(points: F64) -> F64:
     """`np.cov(points.T)` of (N, 3) float points, N ≥ 2."""
     x = np.array(points.T, dtype=np.float64)
     x -= x.mean(axis=1)[:, None]
-    c = np.dot(x, x.T.conj())
+    c: F64 = np.dot(x, x.T.conj())
     c *= np.true_divide(1, x.shape[1] - 1)
     return c
 

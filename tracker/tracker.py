@@ -411,16 +411,16 @@ class Tracker:
 
     def _distances_from(
         self, tracks: list[_Live], points: F64, ceiling: F64 | None = None
-    ) -> tuple[F64, B]:
+    ) -> tuple[F64, F64]:
         """`_distances` from some tracks; given a `ceiling` per point (the most a label may
         cost there and still win it), the surface is only measured where the shape's
-        distance alone leaves the cost below it: elsewhere the distance is inf, and marked
-        in the second array."""
+        distance alone leaves the cost below it: elsewhere the distance is inf, and the
+        second array holds the cost from the shape alone (nan where measured)."""
         p = self.params
         if ceiling is None:
             ceiling = np.full(len(points), np.inf)
         clouds, starts, axes = self._surfaces(tracks)
-        out: tuple[F64, B] = kernels.track_distances(
+        out: tuple[F64, F64] = kernels.track_distances(
             points, ceiling + CEILING_MARGIN,
             np.array([t.filter.position for t in tracks]).reshape(-1, 3),
             np.array([np.linalg.inv(t.shape) for t in tracks]).reshape(-1, 3, 3),
