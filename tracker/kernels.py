@@ -204,15 +204,22 @@ def _slabs(boxes: F64, axis: int) -> F64:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _nearest(cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float) -> float:
+def _nearest(
+    cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float, hint: int
+) -> tuple[float, int]:
     """Distance from q to the nearest point of `cloud` (in slabs along `axis`, as
     `sort_surfaces` leaves it, boxed by `_boxes` and `_slabs`) if its square is below
     bound2, else inf. Slabs are walked outward from q along the axis until their gap alone
     reaches the best square so far; a box is passed over where its distance from q, a
     lower bound of each of its points' (rounding included), does. So the minimum is the
-    brute-force one."""
-    best = bound2
+    brute-force one. The walk starts from the square distance to point `hint` (the last
+    query's nearest: queries come in pixel order); the nearest point's index comes back."""
     m = cloud.shape[0]
+    x = q[0] - cloud[hint, 0]
+    y = q[1] - cloud[hint, 1]
+    z = q[2] - cloud[hint, 2]
+    best = min(bound2, x * x + y * y + z * z)
+    found = hint
     per = SLAB // BUCKET
     lo, hi = 0, slabs.shape[0] - 1
     while lo < hi:  # the first slab reaching up to q along the axis (or the last)
@@ -240,8 +247,9 @@ def _nearest(cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: floa
                         d = x * x + y * y + z * z
                         if d < best:
                             best = d
+                            found = i
             s += step
-    return math.sqrt(best) if best < bound2 else np.inf
+    return (math.sqrt(best) if best < bound2 else np.inf), found
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -274,6 +282,7 @@ def track_distances(
         cloud = clouds[starts[k] : starts[k + 1]]
         boxes = _boxes(cloud)
         slabs = _slabs(boxes, axes[k])
+        hint = 0
         cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
         m = inverses[k]
         m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
@@ -302,7 +311,7 @@ def track_distances(
                 near = np.inf
                 q = points[n]
                 if np.isfinite(q[0]) and np.isfinite(q[1]) and np.isfinite(q[2]):
-                    near = _nearest(cloud, boxes, slabs, axes[k], q, bound2)
+                    near, hint = _nearest(cloud, boxes, slabs, axes[k], q, bound2, hint)
                 value = shape + surface_weight * (near / surface_sigma) ** 2
             out[k, n] = np.inf if np.isnan(value) else value
     return out, rough
