@@ -376,14 +376,15 @@ class Tracker:
             # hold; such a label's cost decides no cut (it may stay inf). Others are made
             # exact, until the labels left are all of that kind.
             while True:
-                exact = np.isnan(least[tracks - 1, nodes])
+                unmeasured = ~np.isnan(least[tracks - 1, nodes])
+                # the labels a node may hold: exact and finite (an inf one never is)
+                held = ~unmeasured & np.isfinite(unary[tracks, nodes])
                 top = unary[0].copy()
-                np.maximum.at(top, nodes[exact], unary[tracks[exact], nodes[exact]])
-                rough = ~exact
-                need = rough.copy()
-                need[rough] = (
-                    least[tracks[rough] - 1, nodes[rough]]
-                    <= top[nodes[rough]] + ties[nodes[rough]] + CEILING_MARGIN
+                np.maximum.at(top, nodes[held], unary[tracks[held], nodes[held]])
+                need = unmeasured.copy()
+                at = nodes[unmeasured]
+                need[unmeasured] = (
+                    least[tracks[unmeasured] - 1, at] <= top[at] + ties[at] + CEILING_MARGIN
                 )
                 if not need.any():
                     return
