@@ -105,7 +105,9 @@ def test_expansion_terms_are_the_numpy_ones():
     labels = rng.choice([0, 2], 40).astype(np.int64)
     for alpha in range(3):
         every = np.arange(40)
-        source, sink, si, sj, pair = kernels.expansion_terms(unary, labels, alpha, i, j, w, every)
+        source, sink, si, sj, pair = kernels.expansion_terms(
+            unary, labels, alpha, i, j, w, every, every
+        )
         np.testing.assert_array_equal(si, i)
         np.testing.assert_array_equal(sj, j)
         idx = np.arange(40)
@@ -129,13 +131,13 @@ def test_settled_nodes_left_out_of_the_moves_change_no_cut():
             i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
             unary = rng.random((labels, nodes)) * rng.choice([0.5, 20.0], (labels, nodes))
             problem = PottsProblem(unary, i, j, rng.random(i.size))
-            local = multicut._movable(problem, None)
-            assert 0 < (local < 0).sum() < nodes  # some settled, some not
+            core = multicut._Core.of(problem, None)
+            assert 0 < core.nodes.size < nodes  # some settled, some not
             # the same moves from the same start, with every node in the graph
             cheapest = np.argmin(unary, axis=0)
             assert (solve_potts(problem) == solve_potts(problem, start=cheapest)).all()
             if labels == 2:
-                every = np.arange(nodes)
+                every = multicut._Core.of(problem, np.zeros(nodes, np.int64))
                 whole = multicut._expand(problem, np.zeros(nodes, np.int64), 1, every)
                 assert (solve_binary(problem) == whole).all()
 

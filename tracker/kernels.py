@@ -491,22 +491,20 @@ def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def expansion_terms(
-    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64
+    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64, nodes: I64
 ) -> tuple[F64, F64, I64, I64, F64]:
     """The α-expansion move's graph from `labels` (see `multicut._expand`) over the nodes
-    that may move (`local` ≥ 0: their number in the graph; the others keep their label):
-    each one's capacity from the source and to the sink, and the edges between them (i, j,
-    capacity from i to j). An edge to a node that keeps its label is a unary term.
+    that may move (`nodes`; `local` ≥ 0: their number in the graph; the others keep their
+    label): each one's capacity from the source and to the sink, and the edges between
+    them (i, j, capacity from i to j). An edge to a node that keeps its label is a unary
+    term; edges between two such nodes may be left out of i, j, w.
 
     With x_p = 1 for "take α", an edge's E(x_p, x_q) has A = E00, B = E01, C = E10 and
     D = E11 = 0, so E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q."""
-    n = 0
-    for p in range(local.size):
-        n = max(n, local[p] + 1)
+    n = nodes.size
     unary1 = np.empty(n)
-    for p in range(local.size):
-        if local[p] >= 0:
-            unary1[local[p]] = unary[alpha, p] - unary[labels[p], p]
+    for p in nodes:
+        unary1[local[p]] = unary[alpha, p] - unary[labels[p], p]
     ri = np.empty(i.size, np.int64)
     rj = np.empty(i.size, np.int64)
     pair = np.empty(i.size)
@@ -604,7 +602,7 @@ def warm_up() -> None:
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))
-        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one)
+        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)

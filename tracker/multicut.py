@@ -52,11 +52,11 @@ class PottsProblem:
         return data + float(self.w[labels[self.i] != labels[self.j]].sum())
 
 
-def _expand(problem: PottsProblem, labels: I64, alpha: int, local: I64) -> I64:
+def _expand(problem: PottsProblem, labels: I64, alpha: int, core: _Core) -> I64:
     """The best α-expansion move from `labels`: each node keeps its label or takes α; only
-    the nodes with `local` ≥ 0 (their number in the graph) may move."""
+    the nodes of `core` may move."""
     source, sink, i, j, pair = expansion_terms(
-        problem.unary, labels, alpha, problem.i, problem.j, problem.w, local
+        problem.unary, labels, alpha, core.i, core.j, core.w, core.local, core.nodes
     )
     if source.size == 0:
         return labels.copy()
@@ -69,32 +69,46 @@ def _expand(problem: PottsProblem, labels: I64, alpha: int, local: I64) -> I64:
     g.maxflow()
     take_alpha = g.get_grid_segments(nodes).astype(bool)
     out = labels.copy()
-    out[np.nonzero(local >= 0)[0][take_alpha]] = alpha
+    out[core.nodes[take_alpha]] = alpha
     return out
 
 
-def _movable(problem: PottsProblem, start: I64 | None) -> I64:
-    """Each node's number among those an expansion may move (−1 for the others): from each
-    node's cheapest label, a node settled on it (`kernels.settled`) never moves, and the
-    graph of every move is the smaller for leaving it out."""
-    move = ~settled(problem.unary, problem.i, problem.j, problem.w)
-    if start is not None:
-        move[:] = True
-    local = np.full(problem.nodes, -1, np.int64)
-    local[move] = np.arange(int(move.sum()))
-    return local
+@dataclass(frozen=True, eq=False)
+class _Core:
+    """The nodes an expansion may move, their number in its graph (`local`, −1 for the
+    others) and the edges that reach them, in order."""
+
+    nodes: I64
+    local: I64
+    i: I64
+    j: I64
+    w: F64
+
+    @classmethod
+    def of(cls, problem: PottsProblem, start: I64 | None) -> _Core:
+        """From each node's cheapest label, a node settled on it (`kernels.settled`) never
+        moves, and the graph of every move is the smaller for leaving it out; from a given
+        `start`, every node may move."""
+        move = ~settled(problem.unary, problem.i, problem.j, problem.w)
+        if start is not None:
+            move[:] = True
+        nodes = np.nonzero(move)[0]
+        local = np.full(problem.nodes, -1, np.int64)
+        local[nodes] = np.arange(nodes.size)
+        reach = move[problem.i] | move[problem.j]
+        return cls(nodes, local, problem.i[reach], problem.j[reach], problem.w[reach])
 
 
 def solve_binary(problem: PottsProblem) -> I64:
     """The exact minimum of a two-label problem: one min cut."""
     if problem.labels != 2:
         raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
-    local = _movable(problem, None)
+    core = _Core.of(problem, None)
     # one move from all background: what is settled is on its label from the start
     start = np.zeros(problem.nodes, np.int64)
-    settled = local < 0
-    start[settled] = np.argmin(problem.unary[:, settled], axis=0)
-    return _expand(problem, start, 1, local)
+    fixed = core.local < 0
+    start[fixed] = np.argmin(problem.unary[:, fixed], axis=0)
+    return _expand(problem, start, 1, core)
 
 
 def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int = 4) -> I64:
@@ -103,12 +117,12 @@ def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int
     labels = np.argmin(problem.unary, axis=0).astype(np.int64) if start is None else start.copy()
     if problem.nodes == 0:
         return labels
-    local = _movable(problem, start)
+    core = _Core.of(problem, start)
     best = problem.energy(labels)
     for _ in range(max_sweeps):
         improved = False
         for alpha in range(problem.labels):
-            moved = _expand(problem, labels, alpha, local)
+            moved = _expand(problem, labels, alpha, core)
             if np.array_equal(moved, labels):
                 continue  # the same labels: the same energy, no better
             e = problem.energy(moved)
