@@ -17,6 +17,7 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker import kernels
 from tofcut.tracker.belt import BeltGeometry
 
 F64 = npt.NDArray[np.float64]
@@ -81,7 +82,7 @@ class BackgroundModel:
         """Feed a learning frame with its range noise (`tofcut.tracker.noise`), less the
         pixels within `reach` of the (k, 3) `occupied` points (objects already followed);
         True once the model is ready."""
-        valid = frame.valid & ~_near(frame.xyz, frame.valid, occupied, reach)
+        valid = frame.valid & ~near_any(frame.xyz, frame.valid, occupied, reach)
         self._seen.append((frame.range, valid))
         self._noise.append(np.where(valid, noise, np.nan))
         if len(self._seen) < self.params.learn_frames:
@@ -144,41 +145,21 @@ class BackgroundModel:
     def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
         range once the pixel has read farther for `reveal_frames` frames in a row. A pixel
-        not known yet is learned after `reveal_frames` free frames, unless it lies within
-        `reach` of one of the `occupied` (k, 3) points: an object's part its track missed."""
+        not known yet is learned after `reveal_frames` free frames (its noise `noise`, the
+        frame's), unless it lies within `reach` of one of the `occupied` (k, 3) points: an
+        object's part its track missed."""
         p = self.params
         usable = free & frame.valid
-        with np.errstate(invalid="ignore"):
-            deviation = frame.range - self.range
-            farther = usable & (deviation > p.noise_factor * self.sigma)
-        self._farther = np.where(farther, self._farther + 1, 0)
-        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
-        unknown = usable & ~self.known
-        self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
-        newly = self._unknown_seen >= p.reveal_frames
-        newly &= ~_near(frame.xyz, newly, occupied, reach)
-        revealed = self._farther >= p.reveal_frames
-        # follow only what looks like the same scenery; anything farther off than
-        # BLEND_SIGMAS is an object's edge or a flying pixel and would widen the noise
-        # estimate until real objects no longer stand out of it
-        blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
-        self.range[blend] += p.rate * deviation[blend]
-        var = self.sigma[blend] ** 2
-        # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
-        var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
-        self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
-        # back to the nearest of the farther readings: flying pixels only ever read too far
-        self.range[revealed] = self._farther_min[revealed]
-        self.range[newly] = frame.range[newly]
-        self.sigma[newly] = noise[newly]
-        jump = revealed | newly
-        self._farther[jump] = 0
-        self._farther_min[jump] = np.inf
-        self._unknown_seen[newly] = 0
-        self.known |= newly
+        due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
+        kernels.follow_scene(
+            self.range, self.sigma, self.known, self._farther, self._farther_min,
+            self._unknown_seen, frame.range, usable, near_any(frame.xyz, due, occupied, reach),
+            noise, p.noise_factor, p.rate, p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS,
+            BLEND_VARIANCE_SHARE,
+        )  # fmt: skip
 
 
-def _near(xyz: F64, where: B, points: F64, reach: float) -> B:
+def near_any(xyz: F64, where: B, points: F64, reach: float) -> B:
     """Which pixels in `where` have their 3D point within `reach` of one of `points`."""
     near = np.zeros(where.shape, bool)
     if len(points) and where.any():

@@ -8,6 +8,7 @@ the belt, so they keep the belt's pace through occlusion.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,24 @@ class MotionParams:
             raise ValueError("motion noise levels must be positive")
 
 
+_POSITION = slice(0, 3)
+_VELOCITY = slice(3, 6)
+
+
+@functools.lru_cache(maxsize=8)
+def _transition(dt: float, accel_sigma: float) -> tuple[F64, F64]:
+    """The state transition over dt seconds and its process noise (frames come at a steady
+    rate, so the few recent ones are kept)."""
+    f = np.eye(6)
+    f[:3, 3:] = np.eye(3) * dt
+    q = accel_sigma**2
+    block = np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]) * q
+    f.flags.writeable = False
+    qm = np.asarray(np.kron(block, np.eye(3)), np.float64)
+    qm.flags.writeable = False
+    return f, qm
+
+
 class ConstantVelocity:
     """One object's 3D position and velocity."""
 
@@ -56,28 +75,29 @@ class ConstantVelocity:
         """Move the state on by dt seconds."""
         if dt <= 0:
             return
-        f = np.eye(6)
-        f[:3, 3:] = np.eye(3) * dt
-        q = self.params.accel_sigma**2
-        block = np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]]) * q
-        qm = np.kron(block, np.eye(3))
+        f, qm = _transition(dt, self.params.accel_sigma)
         self.x = f @ self.x
         self.P = f @ self.P @ f.T + qm
 
     def correct(self, centroid: F64, sigma_m: float | None = None) -> None:
         """Take a measured centroid into the state."""
         s = self.params.measure_sigma_m if sigma_m is None else sigma_m
-        self._update(np.hstack([np.eye(3), np.zeros((3, 3))]), np.asarray(centroid), s)
+        self._update(_POSITION, np.asarray(centroid), s)
 
     def follow_belt(self, prior: VelocityPrior) -> None:
         """Take the belt's velocity as a measurement of the object's velocity."""
         if prior.informed:
-            self._update(np.hstack([np.zeros((3, 3)), np.eye(3)]), prior.mean, prior.cov)
+            self._update(_VELOCITY, prior.mean, prior.cov)
 
-    def _update(self, h: F64, z: F64, sigma: float | F64) -> None:
+    def _update(self, part: slice, z: F64, sigma: float | F64) -> None:
+        """Kalman update from a measurement of `part` of the state (position or velocity):
+        with H that part's selection, H·x, H·P·Hᵀ, P·Hᵀ and K·H are those entries of x, P
+        and K themselves, exactly, so they are taken rather than multiplied out."""
         r = np.eye(3) * sigma**2 if isinstance(sigma, float) else sigma
-        innovation = z - h @ self.x
-        s = h @ self.P @ h.T + r
-        k = self.P @ h.T @ np.linalg.inv(s)
+        innovation = z - self.x[part]
+        s = self.P[part, part] + r
+        k = np.ascontiguousarray(self.P[:, part]) @ np.linalg.inv(s)
         self.x = self.x + k @ innovation
-        self.P = (np.eye(6) - k @ h) @ self.P
+        kh = np.zeros((6, 6))
+        kh[:, part] = k
+        self.P = (np.eye(6) - kh) @ self.P

@@ -15,6 +15,8 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
+from tofcut.tracker.kernels import expansion_terms, settled
+
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
@@ -50,40 +52,63 @@ class PottsProblem:
         return data + float(self.w[labels[self.i] != labels[self.j]].sum())
 
 
-def _expand(problem: PottsProblem, labels: I64, alpha: int) -> I64:
-    """The best α-expansion move from `labels`: each node keeps its label or takes α."""
-    n = problem.nodes
-    idx = np.arange(n)
-    keep = problem.unary[labels, idx]
-    take = problem.unary[alpha, idx]
-    # binary x_p = 1 means "take α"; pairwise E(x_p, x_q) with A=E00, B=E01, C=E10, D=E11
-    li, lj, w = labels[problem.i], labels[problem.j], problem.w
-    a = w * (li != lj)
-    b = w * (li != alpha)
-    c = w * (alpha != lj)
-    # E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q, with D = 0
-    unary1 = take - keep
-    np.add.at(unary1, problem.i, c - a)
-    np.add.at(unary1, problem.j, -c)
-    g = maxflow.Graph[float](n, problem.i.size)
-    nodes = g.add_nodes(n)
+def _expand(problem: PottsProblem, labels: I64, alpha: int, core: _Core) -> I64:
+    """The best α-expansion move from `labels`: each node keeps its label or takes α; only
+    the nodes of `core` may move."""
+    source, sink, i, j, pair = expansion_terms(
+        problem.unary, labels, alpha, core.i, core.j, core.w, core.local, core.nodes
+    )
+    if source.size == 0:
+        return labels.copy()
+    g = maxflow.Graph[float](source.size, i.size)
+    nodes = g.add_nodes(source.size)
     # a node in the sink segment (segment 1) takes α and pays its source capacity
-    g.add_grid_tedges(nodes, np.maximum(unary1, 0.0), np.maximum(-unary1, 0.0))
-    pair = b + c - a
+    g.add_grid_tedges(nodes, source, sink)
     if pair.size:
-        g.add_edges(nodes[problem.i], nodes[problem.j], pair, np.zeros_like(pair))
+        g.add_edges(nodes[i], nodes[j], pair, np.zeros_like(pair))
     g.maxflow()
     take_alpha = g.get_grid_segments(nodes).astype(bool)
     out = labels.copy()
-    out[take_alpha] = alpha
+    out[core.nodes[take_alpha]] = alpha
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Core:
+    """The nodes an expansion may move, their number in its graph (`local`, −1 for the
+    others) and the edges that reach them, in order."""
+
+    nodes: I64
+    local: I64
+    i: I64
+    j: I64
+    w: F64
+
+    @classmethod
+    def of(cls, problem: PottsProblem, start: I64 | None) -> _Core:
+        """From each node's cheapest label, a node settled on it (`kernels.settled`) never
+        moves, and the graph of every move is the smaller for leaving it out; from a given
+        `start`, every node may move."""
+        move = ~settled(problem.unary, problem.i, problem.j, problem.w)
+        if start is not None:
+            move[:] = True
+        nodes = np.nonzero(move)[0]
+        local = np.full(problem.nodes, -1, np.int64)
+        local[nodes] = np.arange(nodes.size)
+        reach = move[problem.i] | move[problem.j]
+        return cls(nodes, local, problem.i[reach], problem.j[reach], problem.w[reach])
 
 
 def solve_binary(problem: PottsProblem) -> I64:
     """The exact minimum of a two-label problem: one min cut."""
     if problem.labels != 2:
         raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
-    return _expand(problem, np.zeros(problem.nodes, np.int64), 1)
+    core = _Core.of(problem, None)
+    # one move from all background: what is settled is on its label from the start
+    start = np.zeros(problem.nodes, np.int64)
+    fixed = core.local < 0
+    start[fixed] = np.argmin(problem.unary[:, fixed], axis=0)
+    return _expand(problem, start, 1, core)
 
 
 def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int = 4) -> I64:
@@ -92,11 +117,14 @@ def solve_potts(problem: PottsProblem, start: I64 | None = None, max_sweeps: int
     labels = np.argmin(problem.unary, axis=0).astype(np.int64) if start is None else start.copy()
     if problem.nodes == 0:
         return labels
+    core = _Core.of(problem, start)
     best = problem.energy(labels)
     for _ in range(max_sweeps):
         improved = False
         for alpha in range(problem.labels):
-            moved = _expand(problem, labels, alpha)
+            moved = _expand(problem, labels, alpha, core)
+            if np.array_equal(moved, labels):
+                continue  # the same labels: the same energy, no better
             e = problem.energy(moved)
             if e < best - 1e-9 * max(1.0, abs(best)):
                 labels, best, improved = moved, e, True

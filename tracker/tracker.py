@@ -15,17 +15,16 @@ frames running, becomes a new track.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker import kernels, stats
 from tofcut.tracker.background import BackgroundModel, BackgroundParams
 from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -37,7 +36,7 @@ from tofcut.tracker.tracks import Track, TrackedFrame
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
-_Index = tuple[slice, slice]
+I32 = npt.NDArray[np.int32]
 
 SHAPE_FLOOR_M = 0.01
 """No track's shape is thinner than this (1σ) in any direction."""
@@ -45,9 +44,9 @@ MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
 USUAL_MEMORY = 0.995
 """Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
-
-_NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
-"""Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
+SQRT2 = math.sqrt(2.0)
+CEILING_MARGIN = 1e-6
+"""Slack on the cost a label may have and still win a pixel, against rounding."""
 
 
 @dataclass(frozen=True)
@@ -164,11 +163,25 @@ class _Candidate:
 
 
 _EIGHT = np.ones((3, 3), bool)
+_NONE = np.zeros((0, 0), bool)
+_NO_POINTS = np.zeros((0, 3))
+_NO_NODES = np.zeros(0, np.int64)
 
 
-def _on_border(mask: B) -> bool:
-    """Whether a mask touches the edge of the image."""
-    return bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any())
+def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
+    """Whether a box (a mask's bounding slices) touches the edge of the image."""
+    rows, cols = box
+    return bool(
+        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
+    )
+
+
+def _beside(pieces: npt.NDArray[np.int32], mask: B, box: tuple[slice, slice]) -> I32:
+    """`pieces[binary_dilation(mask, _EIGHT)]`, from the mask's box and a pixel around it."""
+    rows = slice(max(box[0].start - 1, 0), box[0].stop + 1)
+    cols = slice(max(box[1].start - 1, 0), box[1].stop + 1)
+    out: I32 = pieces[rows, cols][ndimage.binary_dilation(mask[rows, cols], _EIGHT)]
+    return out
 
 
 def _subsample(points: F64, n: int) -> F64:
@@ -182,11 +195,11 @@ def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> 
     """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
     object reaches down to the belt, though the camera sees mostly its top: the spread
     along the belt's normal is at least that of a solid from the belt to its top."""
-    cov = np.cov(points.T) if len(points) > 3 else np.zeros((3, 3))
+    cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
     cov = cov + np.eye(3) * floor_m**2
     if belt is not None and len(points):
         n = belt.normal
-        top = float(np.percentile((points - belt.point) @ n, 90))
+        top = stats.percentile((points - belt.point) @ n, 90)
         missing = top * top / 3.0 - float(n @ cov @ n)
         if missing > 0:
             cov = cov + missing * np.outer(n, n)
@@ -195,6 +208,8 @@ def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> 
 
 class Tracker:
     """Frames in, tracks out. Feed every frame in order with `update`."""
+
+    background_model: type[BackgroundModel] = BackgroundModel
 
     def __init__(
         self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
@@ -207,6 +222,14 @@ class Tracker:
         self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
         self._next_id = 1
         self._last_time_us: int | None = None
+        self._sorted: dict[int, tuple[F64, F64, int]] = {}
+        """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
+        kernels.warm_up()
+        p = self.params
+        self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
+        """Farthest a track's surface can be from a point it could still win, in its spread."""
+        self._most_ties = 2 * p.smoothness * float(kernels.FACTORS.sum())
+        """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
         """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
@@ -223,7 +246,7 @@ class Tracker:
         p = self.params
         h, w = frame.shape
         if self.background is None:
-            self.background = BackgroundModel((h, w), p.background)
+            self.background = self.background_model((h, w), p.background)
         dt = 0.0
         if self._last_time_us is not None:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
@@ -245,10 +268,12 @@ class Tracker:
         born += found
         if ready and prior is not None:
             ended += self._to_scenery(frame, labels, prior, dt, noise)
+        for gone in ended:
+            self._sorted.pop(gone, None)
         if ready:
-            self.background.update(frame, labels == 0, noise, self._surfaces(), p.keep_clear_m)
+            self.background.update(frame, labels == 0, noise, self._track_points(), p.keep_clear_m)
         elif (
-            self.background.learn(frame, noise, self._surfaces(), p.keep_clear_m)
+            self.background.learn(frame, noise, self._track_points(), p.keep_clear_m)
             and self.belt is not None
         ):
             self.background.clear_belt(frame, self.belt)
@@ -329,7 +354,7 @@ class Tracker:
             labels[region & (labels == 0)] = t.id
         return labels
 
-    def _surfaces(self) -> F64:
+    def _track_points(self) -> F64:
         """(N, 3) every track's predicted surface points."""
         return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
 
@@ -348,28 +373,11 @@ class Tracker:
         assert bg is not None
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
-        cost = np.minimum(0.5 * z * z, p.background_cap)
-        return np.where(bg.known, cost, p.unknown_cost)
-
-    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
-        """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
-        sum of the weights at each pixel."""
-        p = self.params
-        h, w = frame.shape
-        valid = frame.valid
-        xyz = frame.xyz
-        ties = []
-        total = np.zeros((h, w))
-        for dv, du, factor in _NEIGHBOURS:
-            a, b = _shifted(h, w, dv, du)
-            d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
-            wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
-            wt[~(valid[a] & valid[b])] = p.smoothness * factor
-            ties.append((a, b, wt))
-            total[a] += wt
-            total[b] += wt
-        return ties, total
+        cost: F64 = kernels.background_cost(
+            bg.range, bg.sigma, bg.known, frame.range, frame.valid, p.deadband,
+            p.background_cap, p.unknown_cost,
+        )  # fmt: skip
+        return cost
 
     def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
         """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
@@ -378,7 +386,8 @@ class Tracker:
         neighbours could make an object label pay (object cost minus background cost above
         the sum of the pixel's ties), and so are runs of invalid pixels (no data cost either
         way) that touch no pixel left free; the minimum over the rest is the minimum of the
-        whole frame.
+        whole frame. A track's distance from a pixel that it could not win even at its
+        shape's distance alone is not measured (it costs inf) unless the cut needs it.
         """
         p = self.params
         h, w = frame.shape
@@ -388,21 +397,30 @@ class Tracker:
         valid = frame.valid
         u0 = self._background_cost(frame)
         u0[~valid] = 0.0
-        ties, total = self._ties(frame)
+        # ties only where they can matter: where the pixel's own ties could free it, and
+        # around invalid pixels (which a run of them may free)
+        near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
+        exps, slot = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
+        wt, total = kernels.tie_weights(np.exp(exps), slot, valid, near, p.smoothness)
         free = valid & (p.object_cost - u0 <= total)
         if not free.any():
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
         first = np.nonzero(free)
-        cost = p.object_cost + p.beta * self._distances(frame.xyz[first], noise[first])
+        ceiling = u0[first] + total[first]
+        distance, floor = self._distances_from(
+            self._tracks, frame.xyz[first], noise[first], ceiling
+        )
+        cost = p.object_cost + p.beta * distance
         free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
             return labels
         column = np.full((h, w), -1, np.int64)
         column[first] = np.arange(first[0].size)
-        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
-        keep = np.unique(runs[free])
-        free |= ~valid & np.isin(runs, keep[keep > 0])
+        if not valid.all():
+            runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
+            keep = np.unique(runs[free])
+            free |= ~valid & np.isin(runs, keep[keep > 0])
         n = int(free.sum())
         index = np.full((h, w), -1, np.int64)
         index[free] = np.arange(n)
@@ -410,21 +428,45 @@ class Tracker:
         unary = np.zeros((len(self._tracks) + 1, n))
         unary[0] = u0[where]
         known = column[where]  # invalid pixels have no column: no data cost either way
-        unary[1:, known >= 0] = cost[:, known[known >= 0]]
-        ei, ej, ew = [], [], []
-        for a, b, wt in ties:
-            ia, ib = index[a], index[b]
-            both = (ia >= 0) & (ib >= 0)
-            ei.append(ia[both])
-            ej.append(ib[both])
-            ew.append(wt[both])
-            # a free pixel beside a fixed one pays the tie for any object label
-            for mine, other in ((ia, ib), (ib, ia)):
-                edge = (mine >= 0) & (other < 0)
-                unary[1:] += np.bincount(mine[edge], wt[edge], minlength=n)
-        chosen = _solve_by_parts(
-            unary, np.concatenate(ei), np.concatenate(ej), np.concatenate(ew), total[where]
-        )
+        measured = known >= 0
+        unary[1:, measured] = cost[:, known[measured]]
+        kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
+        # where a track's surface was not measured, its cost from the shape alone
+        least = np.full((len(self._tracks), n), np.nan)
+        least[:, measured] = floor[:, known[measured]]
+        ties = total[where]
+
+        def measure(tracks: I64, nodes: I64) -> None:
+            # A node never takes a label that costs more than its ties above every label
+            # it could hold: it would do better back with that one whatever its neighbours
+            # hold; such a label's cost decides no cut (it may stay inf). Others are made
+            # exact, until the labels left are all of that kind.
+            while True:
+                unmeasured = ~np.isnan(least[tracks - 1, nodes])
+                # the labels a node may hold: exact and finite (an inf one never is)
+                held = ~unmeasured & np.isfinite(unary[tracks, nodes])
+                top = unary[0].copy()
+                np.maximum.at(top, nodes[held], unary[tracks[held], nodes[held]])
+                need = unmeasured.copy()
+                at = nodes[unmeasured]
+                need[unmeasured] = (
+                    least[tracks[unmeasured] - 1, at] <= top[at] + ties[at] + CEILING_MARGIN
+                )
+                if not need.any():
+                    return
+                for label in np.unique(tracks[need]):
+                    at = nodes[need & (tracks == label)]
+                    v, u = where[0][at], where[1][at]
+                    one = [self._tracks[label - 1]]
+                    value = (
+                        p.object_cost
+                        + p.beta * self._distances_from(one, frame.xyz[v, u], noise[v, u])[0][0]
+                    )
+                    unary[label, at] = kernels.add_fixed_ties_at(value, index, wt, v, u)
+                    least[label - 1, at] = np.nan
+
+        ei, ej, ew = kernels.free_edges(index, wt, where[0], where[1])
+        chosen = _solve_by_parts(unary, ei, ej, ew, ties, measure)
         ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
         labels[where] = ids[chosen]
         return labels
@@ -435,19 +477,43 @@ class Tracker:
         predicted surface in units of `surface_sigma_m`, or of the noise of the difference
         between a point and the surface where that is more (`noise`, each point's range
         noise; inf beyond any track's reach)."""
+        return self._distances_from(self._tracks, points, noise)[0]
+
+    def _distances_from(
+        self, tracks: list[_Live], points: F64, noise: F64, ceiling: F64 | None = None
+    ) -> tuple[F64, F64]:
+        """`_distances` from some tracks; given a `ceiling` per point (the most a label may
+        cost there and still win it), the surface is only measured where the shape's
+        distance alone leaves the cost below it: elsewhere the distance is inf, and the
+        second array holds the cost from the shape alone (nan where measured)."""
         p = self.params
-        spread = np.maximum(p.surface_sigma_m, np.sqrt(2.0) * noise)
-        reach = spread.max(initial=0.0) * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
-        out = np.empty((len(self._tracks), len(points)))
-        finite = np.isfinite(points).all(axis=1)
-        for k, t in enumerate(self._tracks):
-            d = points - t.filter.position
-            out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
-            if p.surface_weight > 0:
-                near = np.full(len(points), np.inf)
-                near[finite], _ = cKDTree(t.cloud).query(points[finite], distance_upper_bound=reach)
-                out[k] += p.surface_weight * (near / spread) ** 2
-        return np.where(np.isnan(out), np.inf, out)
+        if ceiling is None:
+            ceiling = np.full(len(points), np.inf)
+        clouds, starts, axes = self._surfaces(tracks)
+        spread = np.maximum(p.surface_sigma_m, SQRT2 * noise)
+        out: tuple[F64, F64] = kernels.track_distances(
+            points, ceiling + CEILING_MARGIN,
+            np.array([t.filter.position for t in tracks]).reshape(-1, 3),
+            np.array([np.linalg.inv(t.shape) for t in tracks]).reshape(-1, 3, 3),
+            clouds, starts, axes, p.object_cost, p.beta, p.surface_weight, spread,
+            spread.max(initial=0.0) * self._reach_per_sigma,
+        )  # fmt: skip
+        return out
+
+    def _surfaces(self, tracks: list[_Live]) -> tuple[F64, I64, I64]:
+        """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
+        one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
+        axis each is sorted along (kept per track while its cloud stays the same)."""
+        for t in tracks:
+            kept = self._sorted.get(t.id)
+            if kept is None or kept[0] is not t.cloud:
+                cloud, axis = kernels.sort_surfaces(t.cloud, np.array([0, len(t.cloud)]))
+                self._sorted[t.id] = (t.cloud, cloud, int(axis[0]))
+        starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
+        if not tracks:
+            return _NO_POINTS, starts, np.zeros(0, np.int64)
+        clouds = np.concatenate([self._sorted[t.id][1] for t in tracks])
+        return clouds, starts, np.array([self._sorted[t.id][2] for t in tracks], np.int64)
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
@@ -457,7 +523,11 @@ class Tracker:
         heights come apart; one object's pixels stay together)."""
         bg = self.background
         assert bg is not None
-        body = bg.standing_out(frame) & (labels == 0)
+        q = bg.params
+        body = kernels.standing_out(
+            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
+            q.min_height_m,
+        )  # fmt: skip
         return self._pieces(frame, body)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
@@ -465,20 +535,8 @@ class Tracker:
         `connect_m`, or, given the range noise, than three times the noise of their
         difference where that is more (a seed on a far, dark target); the pixel on the far
         side of such a step is left out."""
-        h, w = frame.shape
-        body = body.copy()
-        xyz = frame.xyz
-        step2 = self.params.connect_m**2
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = _shifted(h, w, dv, du)
-            allowed = (
-                step2 if noise is None else np.maximum(step2, 9 * (noise[a] ** 2 + noise[b] ** 2))
-            )
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
-            far_a = jump & (frame.range[a] > frame.range[b])
-            far_b = jump & ~far_a
-            body[a] &= ~far_a
-            body[b] &= ~far_b
+        spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
+        body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
         pieces, _ = ndimage.label(body)
         return np.asarray(pieces, np.int32)
 
@@ -492,21 +550,27 @@ class Tracker:
         born = self._reconcile(frame, labels)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels) if ready else None
+        boxes = ndimage.find_objects(labels)
         for t in self._tracks:
-            mask = labels == t.id
-            n = int(mask.sum())
+            box = boxes[t.id - 1] if t.id <= len(boxes) else None
+            mask = labels[box] == t.id if box is not None else _NONE  # within the box
+            n = int(np.count_nonzero(mask))
             if n >= p.min_pixels:
-                seen = mask
-                entering = _on_border(mask)
+                assert box is not None
+                mask_pts = frame.xyz[box][mask]
+                pts = mask_pts
+                entering = _on_border(box, labels.shape)
                 if pieces is not None and entering:
                     # an object coming into view is bigger than its mask: what stands out
                     # right beside it is the rest of it
-                    near = np.unique(pieces[ndimage.binary_dilation(mask, _EIGHT)])
-                    beside = self._continuing(frame, mask, pieces, near[near > 0])
+                    whole_mask = np.zeros(labels.shape, bool)
+                    whole_mask[box] = mask
+                    near = np.unique(_beside(pieces, whole_mask, box))
+                    beside = self._continuing(frame, whole_mask, pieces, near[near > 0])
                     if beside.size:
-                        seen = mask | np.isin(pieces, beside)
+                        seen = whole_mask | np.isin(pieces, beside)
                         pieces[seen] = 0
-                pts = frame.xyz[seen]
+                        pts = frame.xyz[seen]
                 m = len(pts)
                 usual = t.usual_pixels
                 # a partial view (occlusion) or a tainted one (something else taken in) is
@@ -522,11 +586,17 @@ class Tracker:
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
+                pts = mask_pts
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                t.last = _seen(t, frame, mask)
+                bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
+                t.last = Track(
+                    t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
+                    bbox, n, pts.astype(np.float32),
+                )  # fmt: skip
             else:
-                labels[mask] = 0
+                if box is not None:
+                    labels[box][mask] = 0
                 t.measured = False
                 t.hidden_s += dt
                 t.hidden_frames += 1
@@ -712,53 +782,52 @@ def _touching(pieces: npt.NDArray[np.int32], surfaces: I64) -> bool:
     return bool(np.isin(pieces[ring], surfaces[surfaces != first]).any())
 
 
-def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
+def _solve_by_parts(
+    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[I64, I64], None]
+) -> I64:
     """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
     and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part."""
+    node's total ties of the cheapest) take part. `measure(labels, nodes)` is given the
+    labels and nodes of the parts with more than two labels, before they are cut (their
+    costs may be inf where the label cannot win)."""
     n = unary.shape[1]
-    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
-    parts, part_of = connected_components(graph, directed=False)
+    count, part_of = kernels.parts(n, i, j)
     order = np.argsort(part_of, kind="stable")
-    bounds = np.searchsorted(part_of[order], np.arange(parts + 1))
+    bounds = np.searchsorted(part_of[order], np.arange(count + 1))
     edge_part = part_of[i]
     edge_order = np.argsort(edge_part, kind="stable")
-    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(parts + 1))
+    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(count + 1))
     local = np.empty(n, np.int64)
     chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
     cheapest = unary.min(axis=0)
-    binary: list[tuple[I64, I64, int]] = []
-    for k in np.unique(edge_part):
-        nodes = order[bounds[k] : bounds[k + 1]]
-        edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
-        local[nodes] = np.arange(nodes.size)
-        sub = unary[:, nodes]
-        can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
-        can_win[0] = True
-        labels = np.nonzero(can_win)[0]
-        if labels.size == 2:
-            binary.append((nodes, edges, int(labels[1])))
-        elif labels.size > 2:
-            problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
-            chosen[nodes] = labels[solve_potts(problem)]
-    if binary:
+    can_win = kernels.any_by_part(unary <= cheapest + ties, part_of, count)
+    can_win[0] = True
+    joined = np.zeros(count, bool)
+    joined[edge_part] = True
+    contenders = can_win.sum(axis=0)
+    multi = [
+        (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
+         np.nonzero(can_win[:, k])[0])
+        for k in np.nonzero(joined & (contenders > 2))[0]
+    ]  # fmt: skip
+    # every label's costs exact wherever a cut of more than two labels may weigh them;
+    # with two, a cost left inf is one the track cannot win whatever the neighbours hold
+    measure(
+        np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi] + [_NO_NODES]),
+        np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi] + [_NO_NODES]),
+    )
+    for part, edges, labels in multi:
+        local[part] = np.arange(part.size)
+        problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
+        chosen[part] = labels[solve_potts(problem)]
+    binary = joined & (contenders == 2)
+    nodes = order[binary[part_of[order]]]
+    if nodes.size:
         # every part where one track meets the background: one exact cut for them all
-        nodes = np.concatenate([b[0] for b in binary])
-        edges = np.concatenate([b[1] for b in binary])
-        track = np.concatenate([np.full(b[0].size, b[2]) for b in binary])
+        track = (np.argmax(can_win[1:], axis=0) + 1)[part_of[nodes]]
+        edges = edge_order[binary[edge_part[edge_order]]]
         local[nodes] = np.arange(nodes.size)
         pair = np.stack([unary[0, nodes], unary[track, nodes]])
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
-
-
-def _shifted(h: int, w: int, dv: int, du: int) -> tuple[tuple[slice, slice], tuple[slice, slice]]:
-    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
-    rows_a = slice(0, h - dv)
-    rows_b = slice(dv, h)
-    if du >= 0:
-        cols_a, cols_b = slice(0, w - du), slice(du, w)
-    else:
-        cols_a, cols_b = slice(-du, w), slice(0, w + du)
-    return (rows_a, cols_a), (rows_b, cols_b)

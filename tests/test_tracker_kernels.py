@@ -1,0 +1,170 @@
+"""The compiled tracker (`tofcut.tracker.kernels`) against its numpy reference: the same
+labels and tracks, frame by frame, on emulated scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofcut.sim import open_scene
+from tofcut.sim.crowd import crowd_source
+from tofcut.sim.preview import decode, scene_exposure
+from tofcut.tracker import kernels, multicut
+from tofcut.tracker.belt import BeltGeometry
+from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.motion import ConstantVelocity, MotionParams
+from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.reference import ReferenceTracker
+from tofcut.tracker.tracker import Tracker
+
+
+def _kernels():
+    return {name: f for name, f in vars(kernels).items() if getattr(f, "signatures", None)}
+
+
+def _same_run(source, frames):
+    b = source.belt
+    belt = BeltGeometry(b.point, b.direction, b.normal, b.width_m)
+    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    fast, reference = Tracker(belt=belt), ReferenceTracker(belt=belt)
+    # the tracker warms its kernels up: a live run must not stall on loading one for new
+    # argument types mid-stream
+    warm = {name: list(f.signatures) for name, f in _kernels().items()}
+    assert len(warm) >= 12
+    period = source.settings.frame_period * 1e-4
+    tracked = 0
+    for i in range(frames):
+        frame, _ = decode(source, scene_exposure(source, i * period, i))
+        got, want = fast.update(frame, prior), reference.update(frame, prior)
+        np.testing.assert_array_equal(got.labels, want.labels, err_msg=f"frame {i}")
+        assert [t.id for t in got.tracks] == [t.id for t in want.tracks], i
+        for g, w in zip(got.tracks, want.tracks, strict=True):
+            np.testing.assert_array_equal(g.centroid, w.centroid)
+            assert (g.bbox, g.pixels, g.hidden_frames) == (w.bbox, w.pixels, w.hidden_frames)
+        tracked += sum(t.visible for t in got.tracks)
+    assert {name: list(f.signatures) for name, f in _kernels().items()} == warm
+    for name in ("range", "sigma", "known", "_farther", "_farther_min", "_unknown_seen"):
+        np.testing.assert_array_equal(
+            getattr(fast.background, name), getattr(reference.background, name), err_msg=name
+        )
+    return tracked
+
+
+@pytest.mark.parametrize(
+    ("source", "frames", "least"),
+    [(lambda: crowd_source(10), 30, 100), (lambda: open_scene("conveyor", 0), 60, 60)],
+    ids=["crowd-10", "conveyor"],
+)
+def test_the_compiled_tracker_gives_the_reference_labels_and_tracks(source, frames, least):
+    # `least`: enough visible tracks that the cut, not just the empty scene, was compared
+    assert _same_run(source(), frames) >= least
+
+
+def test_surface_distances_are_the_brute_force_minimum():
+    rng = np.random.default_rng(3)
+    cloud = rng.normal(size=(300, 3)) * 0.05
+    points = rng.normal(size=(500, 3)) * 0.08
+    points[0] = np.nan
+    clouds, axes = kernels.sort_surfaces(cloud, np.array([0, len(cloud)]))
+    inverse = np.linalg.inv(np.cov(cloud.T))
+    spread = 0.015 + 0.02 * rng.random(len(points))  # each point's own (its range noise)
+    distance, rough = kernels.track_distances(
+        points, np.full(len(points), np.inf), np.zeros((1, 3)), inverse[None],
+        clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, spread, 0.1,
+    )  # fmt: skip
+    near = np.sqrt(((points[:, None, :] - cloud[None]) ** 2).sum(axis=-1).min(axis=1))
+    near[near >= 0.1] = np.inf
+    shape = np.einsum("ni,ij,nj->n", points, inverse, points)
+    want = np.where(np.isnan(shape), np.inf, shape + 0.2 * (near / spread) ** 2)
+    np.testing.assert_array_equal(distance[0], want)
+    assert np.isnan(rough).all()
+    # with a ceiling, points the shape alone prices out are not measured: their cost from
+    # the shape alone comes back instead
+    ceiling = np.full(len(points), 8.0 + 2.5 * np.nanmedian(shape))
+    capped, rough = kernels.track_distances(
+        points, ceiling, np.zeros((1, 3)), inverse[None],
+        clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, spread, 0.1,
+    )  # fmt: skip
+    out = 8.0 + 2.5 * shape > ceiling
+    assert out.sum() > 100
+    np.testing.assert_array_equal(rough[0][out], (8.0 + 2.5 * shape)[out])
+    assert np.isnan(rough[0][~out]).all()
+    assert np.isinf(capped[0][out]).all()
+    np.testing.assert_array_equal(
+        capped[0][~out & np.isfinite(shape)], want[~out & np.isfinite(shape)]
+    )
+
+
+def test_expansion_terms_are_the_numpy_ones():
+    rng = np.random.default_rng(4)
+    unary = rng.random((3, 40)) * 5
+    unary[1, :5] = np.inf  # a label a node cannot take
+    i, j = np.triu_indices(40, 1)
+    keep = rng.random(i.size) < 0.1
+    i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
+    w = rng.random(i.size)
+    labels = rng.choice([0, 2], 40).astype(np.int64)
+    for alpha in range(3):
+        every = np.arange(40)
+        source, sink, si, sj, pair = kernels.expansion_terms(
+            unary, labels, alpha, i, j, w, every, every
+        )
+        np.testing.assert_array_equal(si, i)
+        np.testing.assert_array_equal(sj, j)
+        idx = np.arange(40)
+        li, lj = labels[i], labels[j]
+        a, b, c = w * (li != lj), w * (li != alpha), w * (alpha != lj)
+        unary1 = unary[alpha, idx] - unary[labels, idx]
+        np.add.at(unary1, i, c - a)
+        np.add.at(unary1, j, -c)
+        np.testing.assert_array_equal(source, np.maximum(unary1, 0.0))
+        np.testing.assert_array_equal(sink, np.maximum(-unary1, 0.0))
+        np.testing.assert_array_equal(pair, b + c - a)
+
+
+def test_settled_nodes_left_out_of_the_moves_change_no_cut():
+    rng = np.random.default_rng(5)
+    for labels in (2, 3, 4):
+        for _ in range(20):
+            nodes = 60
+            i, j = np.triu_indices(nodes, 1)
+            keep = rng.random(i.size) < 0.05
+            i, j = i[keep].astype(np.int64), j[keep].astype(np.int64)
+            unary = rng.random((labels, nodes)) * rng.choice([0.5, 20.0], (labels, nodes))
+            problem = PottsProblem(unary, i, j, rng.random(i.size))
+            core = multicut._Core.of(problem, None)
+            assert 0 < core.nodes.size < nodes  # some settled, some not
+            # the same moves from the same start, with every node in the graph
+            cheapest = np.argmin(unary, axis=0)
+            assert (solve_potts(problem) == solve_potts(problem, start=cheapest)).all()
+            if labels == 2:
+                every = multicut._Core.of(problem, np.zeros(nodes, np.int64))
+                whole = multicut._expand(problem, np.zeros(nodes, np.int64), 1, every)
+                assert (solve_binary(problem) == whole).all()
+
+
+def test_the_filter_update_takes_exactly_what_the_matrix_form_multiplies_out():
+    rng = np.random.default_rng(6)
+    see = {"position": np.eye(6)[:3], "velocity": np.eye(6)[3:]}
+    for _ in range(200):
+        fast = ConstantVelocity(rng.normal(size=3), MotionParams(), rng.normal(size=3))
+        x, p = fast.x.copy(), fast.P.copy()
+        for _ in range(3):
+            z, belt = rng.normal(size=3), rng.normal(size=3)
+            fast.predict(0.02)
+            fast.correct(z)
+            fast.follow_belt(VelocityPrior(belt, np.eye(3) * 4e-4, True))
+            f = np.eye(6)
+            f[:3, 3:] = np.eye(3) * 0.02
+            q = np.kron(
+                np.array([[0.02**4 / 4, 0.02**3 / 2], [0.02**3 / 2, 0.02**2]]) * 0.25, np.eye(3)
+            )
+            x, p = f @ x, f @ p @ f.T + q
+            for h, value, r in (
+                (see["position"], z, np.eye(3) * 0.01**2),
+                (see["velocity"], belt, np.eye(3) * 4e-4),
+            ):
+                k = p @ h.T @ np.linalg.inv(h @ p @ h.T + r)
+                x, p = x + k @ (value - h @ x), (np.eye(6) - k @ h) @ p
+        np.testing.assert_array_equal(fast.x, x)
+        np.testing.assert_array_equal(fast.P, p)

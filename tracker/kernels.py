@@ -1,0 +1,619 @@
+"""The tracker's per-pixel loops, compiled (numba, one thread): neighbour ties, the graph of
+the pixels left free, distances from the tracks, the 3D steps that split surfaces, the
+background model's arithmetic, and the graphs of the α-expansion moves.
+
+Each kernel does the same floating-point operations in the same order as the numpy
+expressions it replaces (`tofcut.tracker.reference` holds those), with numpy's rules for
+division by zero, so the tracker's output does not change. The one operation numba would
+round differently, `exp` (numpy has its own vectorised one), is left to numpy:
+`tie_exponents` and `tie_weights` go either side.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+B = npt.NDArray[np.bool_]
+I64 = npt.NDArray[np.int64]
+
+NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
+"""Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
+_DV = np.array([d[0] for d in NEIGHBOURS], np.int64)
+_DU = np.array([d[1] for d in NEIGHBOURS], np.int64)
+FACTORS = np.array([d[2] for d in NEIGHBOURS])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
+    """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
+    NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
+    direction is in that list (−1: either is invalid; unset where neither is near)."""
+    h, w = valid.shape
+    slot = np.empty((4, h, w), np.int64)
+    out = np.empty(4 * h * w)
+    n = 0
+    for v0 in range(h):
+        for u0 in range(w):
+            if not near[v0, u0]:
+                continue
+            for k in range(4):
+                dv, du = _DV[k], _DU[k]
+                for side in range(2):  # the pair where (v0, u0) is first, then second
+                    v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
+                    v2, u2 = v + dv, u + du
+                    if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
+                        continue
+                    if side == 1 and near[v, u]:
+                        continue  # done from there
+                    if valid[v, u] and valid[v2, u2]:
+                        a = xyz[v, u, 0] - xyz[v2, u2, 0]
+                        b = xyz[v, u, 1] - xyz[v2, u2, 1]
+                        c = xyz[v, u, 2] - xyz[v2, u2, 2]
+                        out[n] = -(a**2 + b**2 + c**2) / two_sigma2
+                        slot[k, v, u] = n
+                        n += 1
+                    else:
+                        slot[k, v, u] = -1
+    return out[:n], slot
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
+    """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
+    the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
+    pixel is invalid; unset elsewhere), and the sum of each `near` pixel's weights, added
+    up in the order right, left, down, up, down-right, up-left, down-left, up-right (0
+    elsewhere)."""
+    h, w = valid.shape
+    wt = np.empty((4, h, w))
+    total = np.zeros((h, w))
+    for v0 in range(h):
+        for u0 in range(w):
+            if not near[v0, u0]:
+                continue
+            for k in range(4):
+                sf = smoothness * FACTORS[k]
+                dv, du = _DV[k], _DU[k]
+                for side in range(2):
+                    v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
+                    v2, u2 = v + dv, u + du
+                    if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
+                        continue
+                    s = slot[k, v, u]
+                    wt[k, v, u] = sf * exps[s] if s >= 0 else sf
+    for v in range(h):
+        for u in range(w):
+            if not near[v, u]:
+                continue
+            acc = 0.0
+            for k in range(4):
+                dv, du = _DV[k], _DU[k]
+                if v + dv < h and 0 <= u + du < w:
+                    acc += wt[k, v, u]
+                if v - dv >= 0 and 0 <= u - du < w:
+                    acc += wt[k, v - dv, u - du]
+            total[v, u] = acc
+    return wt, total
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64]:
+    """Edges (i, j, weight) between neighbouring free pixels (`index` ≥ 0: their node
+    number; node n at (rows[n], cols[n]), in row-major order), direction by direction."""
+    h, w = index.shape
+    ei = np.empty(4 * rows.size, np.int64)
+    ej = np.empty(4 * rows.size, np.int64)
+    ew = np.empty(4 * rows.size)
+    n = 0
+    for k in range(4):
+        dv, du = _DV[k], _DU[k]
+        for a in range(rows.size):
+            v2, u2 = rows[a] + dv, cols[a] + du
+            if v2 < h and 0 <= u2 < w and index[v2, u2] >= 0:
+                ei[n] = a
+                ej[n] = index[v2, u2]
+                ew[n] = wt[k, rows[a], cols[a]]
+                n += 1
+    return ei[:n], ej[:n], ew[:n]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float:
+    """`value` plus the tie of pixel (v, u) to each fixed neighbour, added one by one in the
+    order of `tie_weights`' sums."""
+    h, w = index.shape
+    for k in range(4):
+        dv, du = _DV[k], _DU[k]
+        if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
+            value += wt[k, v, u]
+        if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
+            value += wt[k, v - dv, u - du]
+    return value
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> None:
+    """A free pixel (`index` ≥ 0: its node; node n at (rows[n], cols[n])) beside a fixed
+    one pays the tie for any object label: add each such tie to rows 1.. of `unary`, in the
+    order of `_with_fixed_ties`."""
+    h, w = index.shape
+    ties = np.empty(8)
+    for node in range(rows.size):
+        v, u = rows[node], cols[node]
+        count = 0
+        for k in range(4):
+            dv, du = _DV[k], _DU[k]
+            if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
+                ties[count] = wt[k, v, u]
+                count += 1
+            if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
+                ties[count] = wt[k, v - dv, u - du]
+                count += 1
+        for label in range(1, unary.shape[0]):
+            value = unary[label, node]
+            for t in range(count):
+                value += ties[t]
+            unary[label, node] = value
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64:
+    """`add_fixed_ties` for one label's costs `values` at the pixels (vs, us)."""
+    out = np.empty_like(values)
+    for n in range(values.size):
+        out[n] = _with_fixed_ties(values[n], index, wt, vs[n], us[n])
+    return out
+
+
+BUCKET = 8
+"""Points of a surface cloud boxed together for `_nearest` to pass over at once."""
+SLAB = 32
+"""Points in a slab: a run of the cloud sorted along its widest axis (see `sort_surfaces`)."""
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _boxes(cloud: F64) -> F64:
+    """(buckets, 2, 3) the low and high corner of each run of BUCKET points of `cloud`."""
+    m = cloud.shape[0]
+    out = np.empty(((m + BUCKET - 1) // BUCKET, 2, 3))
+    for b in range(out.shape[0]):
+        for a in range(3):
+            lo, hi = np.inf, -np.inf
+            for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
+                lo = min(lo, cloud[i, a])
+                hi = max(hi, cloud[i, a])
+            out[b, 0, a] = lo
+            out[b, 1, a] = hi
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _slabs(boxes: F64, axis: int) -> F64:
+    """(slabs, 2) the low and high end along `axis` of each slab's boxes."""
+    per = SLAB // BUCKET
+    out = np.empty(((boxes.shape[0] + per - 1) // per, 2))
+    for s in range(out.shape[0]):
+        out[s, 0] = boxes[s * per : (s + 1) * per, 0, axis].min()
+        out[s, 1] = boxes[s * per : (s + 1) * per, 1, axis].max()
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _nearest(
+    cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float, hint: int
+) -> tuple[float, int]:
+    """Distance from q to the nearest point of `cloud` (in slabs along `axis`, as
+    `sort_surfaces` leaves it, boxed by `_boxes` and `_slabs`) if its square is below
+    bound2, else inf. Slabs are walked outward from q along the axis until their gap alone
+    reaches the best square so far; a box is passed over where its distance from q, a
+    lower bound of each of its points' (rounding included), does. So the minimum is the
+    brute-force one. The walk starts from the square distance to point `hint` (the last
+    query's nearest: queries come in pixel order); the nearest point's index comes back."""
+    m = cloud.shape[0]
+    x = q[0] - cloud[hint, 0]
+    y = q[1] - cloud[hint, 1]
+    z = q[2] - cloud[hint, 2]
+    best = min(bound2, x * x + y * y + z * z)
+    found = hint
+    per = SLAB // BUCKET
+    lo, hi = 0, slabs.shape[0] - 1
+    while lo < hi:  # the first slab reaching up to q along the axis (or the last)
+        mid = (lo + hi) // 2
+        if slabs[mid, 1] < q[axis]:
+            lo = mid + 1
+        else:
+            hi = mid
+    for step in (1, -1):
+        s = lo if step > 0 else lo - 1
+        while 0 <= s < slabs.shape[0]:
+            gap = slabs[s, 0] - q[axis] if step > 0 else q[axis] - slabs[s, 1]
+            if gap > 0 and gap * gap >= best:
+                break  # so are all slabs farther on along the axis
+            for b in range(s * per, min(boxes.shape[0], (s + 1) * per)):
+                floor = 0.0
+                for a in range(3):
+                    g = max(boxes[b, 0, a] - q[a], q[a] - boxes[b, 1, a], 0.0)
+                    floor += g * g
+                if floor < best:
+                    for i in range(b * BUCKET, min(m, (b + 1) * BUCKET)):
+                        x = q[0] - cloud[i, 0]
+                        y = q[1] - cloud[i, 1]
+                        z = q[2] - cloud[i, 2]
+                        d = x * x + y * y + z * z
+                        if d < best:
+                            best = d
+                            found = i
+            s += step
+    return (math.sqrt(best) if best < bound2 else np.inf), found
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def track_distances(
+    points: F64,
+    ceiling: F64,
+    centres: F64,
+    inverses: F64,
+    clouds: F64,
+    starts: I64,
+    axes: I64,
+    object_cost: float,
+    beta: float,
+    surface_weight: float,
+    spread: F64,
+    reach: float,
+) -> tuple[F64, F64]:
+    """(tracks, N) each point's distance from each track: (D−µ)ᵀΣ⁻¹(D−µ) in the track's
+    shape (summed as numpy's einsum sums it) plus surface_weight·(d/spread)², d the
+    distance from the track's surface (`clouds[starts[k]:starts[k+1]]`, sorted along
+    `axes[k]`; inf beyond `reach`); inf where not a number. Where a track's cost from its
+    shape alone, object_cost + β·shape, is above the point's `ceiling`, the surface is not
+    looked at: the distance is inf, and the second array holds that cost from the shape
+    alone (a lower bound of the point's cost; nan where the distance was measured)."""
+    tracks, n_points = centres.shape[0], points.shape[0]
+    out = np.empty((tracks, n_points))
+    rough = np.full((tracks, n_points), np.nan)
+    bound2 = reach * reach
+    for k in range(tracks):
+        cloud = clouds[starts[k] : starts[k + 1]]
+        boxes = _boxes(cloud)
+        slabs = _slabs(boxes, axes[k])
+        hint = 0
+        cx, cy, cz = centres[k, 0], centres[k, 1], centres[k, 2]
+        m = inverses[k]
+        m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
+        m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
+        for n in range(n_points):
+            x, y, z = points[n, 0] - cx, points[n, 1] - cy, points[n, 2] - cz
+            # term by term in einsum's order: i outer, j inner
+            shape = 0.0
+            shape += x * m00 * x
+            shape += x * m01 * y
+            shape += x * m02 * z
+            shape += y * m10 * x
+            shape += y * m11 * y
+            shape += y * m12 * z
+            shape += z * m20 * x
+            shape += z * m21 * y
+            shape += z * m22 * z
+            value = shape
+            if surface_weight > 0:
+                alone = object_cost + beta * shape
+                if not alone <= ceiling[n]:
+                    out[k, n] = np.inf
+                    if np.isfinite(alone):
+                        rough[k, n] = alone
+                    continue
+                near = np.inf
+                q = points[n]
+                if np.isfinite(q[0]) and np.isfinite(q[1]) and np.isfinite(q[2]):
+                    near, hint = _nearest(cloud, boxes, slabs, axes[k], q, bound2, hint)
+                value = shape + surface_weight * (near / spread[n]) ** 2
+            out[k, n] = np.inf if np.isnan(value) else value
+    return out, rough
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
+    """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
+    of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
+    step, the pixel with the larger range is the far one)."""
+    h, w = body.shape
+    out = body.copy()
+    for dv, du in ((0, 1), (1, 0)):
+        for v in range(h - dv):
+            for u in range(w - du):
+                v2, u2 = v + dv, u + du
+                if not (body[v, u] or body[v2, u2]):
+                    continue  # nothing to leave out
+                a = xyz[v, u, 0] - xyz[v2, u2, 0]
+                b = xyz[v, u, 1] - xyz[v2, u2, 1]
+                c = xyz[v, u, 2] - xyz[v2, u2, 2]
+                allowed = max(step2, spread2[v, u] + spread2[v2, u2])
+                if a**2 + b**2 + c**2 > allowed:
+                    if rng[v, u] > rng[v2, u2]:
+                        out[v, u] = False
+                    else:
+                        out[v2, u2] = False
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
+    """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
+    numbered in the order of each part's first node (as scipy's connected_components)."""
+    root = np.arange(n)
+    for e in range(i.size):
+        a, b = i[e], j[e]
+        while root[a] != a:
+            root[a] = root[root[a]]
+            a = root[a]
+        while root[b] != b:
+            root[b] = root[root[b]]
+            b = root[b]
+        if a != b:
+            root[max(a, b)] = min(a, b)
+    part_of = np.empty(n, np.int64)
+    count = 0
+    for v in range(n):
+        r = v
+        while root[r] != r:
+            r = root[r]
+        if r == v:
+            part_of[v] = count
+            count += 1
+        else:
+            part_of[v] = part_of[r]
+    return count, part_of
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def any_by_part(win: B, part_of: I64, count: int) -> B:
+    """(rows, parts): whether any node of each part is True in each row of `win`."""
+    out = np.zeros((win.shape[0], count), np.bool_)
+    for v in range(win.shape[1]):
+        for r in range(win.shape[0]):
+            if win[r, v]:
+                out[r, part_of[v]] = True
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
+    """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
+    slab of SLAB points along the widest of the other two (as `track_distances` takes
+    them), and the first axes."""
+    out = np.empty_like(clouds)
+    axes = np.zeros(starts.size - 1, np.int64)
+    for k in range(starts.size - 1):
+        cloud = clouds[starts[k] : starts[k + 1]]
+        widest = -1.0
+        for a in range(3):
+            spread = cloud[:, a].max() - cloud[:, a].min()
+            if spread > widest:
+                widest = spread
+                axes[k] = a
+        order = np.argsort(cloud[:, axes[k]])
+        for n in range(order.size):
+            out[starts[k] + n] = cloud[order[n]]
+        # within each slab, along the next widest axis: its boxes are then small both ways
+        for s in range(starts[k], starts[k + 1], SLAB):
+            end = min(starts[k + 1], s + SLAB)
+            across, widest = 0, -1.0
+            for a in range(3):
+                spread = out[s:end, a].max() - out[s:end, a].min()
+                if a != axes[k] and spread > widest:
+                    widest = spread
+                    across = a
+            for n in range(s + 1, end):  # insertion sort: a slab is short
+                x, y, z = out[n, 0], out[n, 1], out[n, 2]
+                key = out[n, across]
+                m = n - 1
+                while m >= s and out[m, across] > key:
+                    out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = out[m, 0], out[m, 1], out[m, 2]
+                    m -= 1
+                out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = x, y, z
+    return out, axes
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def follow_scene(
+    model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
+    unknown_seen: npt.NDArray[np.int32], seen: F64, usable: B, hold: B, noise: F64,
+    noise_factor: float, rate: float, min_sigma: float, reveal_frames: int,
+    blend_sigmas: float, variance_share: float,
+) -> None:  # fmt: skip
+    """`BackgroundModel.update`'s per-pixel arithmetic, in place, in one pass (see there):
+    `hold` marks pixels not to be learned yet, `noise` the frame's range noise."""
+    h, w = model.shape
+    for v in range(h):
+        for u in range(w):
+            deviation = seen[v, u] - model[v, u]
+            use = usable[v, u]
+            if use and deviation > noise_factor * sigma[v, u]:
+                farther[v, u] += 1
+                farther_min[v, u] = min(farther_min[v, u], seen[v, u])
+            else:
+                farther[v, u] = 0
+                farther_min[v, u] = np.inf
+            if use and not known[v, u]:
+                unknown_seen[v, u] += 1
+            else:
+                unknown_seen[v, u] = 0
+            newly = unknown_seen[v, u] >= reveal_frames and not hold[v, u]
+            revealed = farther[v, u] >= reveal_frames
+            # follow only what looks like the same scenery; anything farther off than
+            # blend_sigmas is an object's edge or a flying pixel and would widen the noise
+            # estimate until real objects no longer stand out of it
+            if use and known[v, u] and abs(deviation) <= blend_sigmas * sigma[v, u]:
+                model[v, u] += rate * deviation
+                var = sigma[v, u] ** 2
+                # the spread of a normal cut at ±2.5σ is 0.91 of the whole: undo that bias
+                var += rate * (deviation**2 / variance_share - var)
+                spread = math.sqrt(var)
+                sigma[v, u] = min_sigma if spread < min_sigma else spread
+            # back to the nearest of the farther readings: flying pixels only ever read too far
+            if revealed:
+                model[v, u] = farther_min[v, u]
+            if newly:
+                model[v, u] = seen[v, u]
+                sigma[v, u] = noise[v, u]
+            if revealed or newly:
+                farther[v, u] = 0
+                farther_min[v, u] = np.inf
+            if newly:
+                unknown_seen[v, u] = 0
+                known[v, u] = True
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
+    """Nodes whose cheapest label is cheaper than any other by more than all their edges
+    weigh: from there no labelling of their neighbours makes another label pay, so no
+    expansion move ever takes them off it."""
+    n = unary.shape[1]
+    weigh = np.zeros(n)
+    for e in range(i.size):
+        weigh[i[e]] += w[e]
+        weigh[j[e]] += w[e]
+    out = np.zeros(n, np.bool_)
+    for p in range(n):
+        best, second = np.inf, np.inf
+        for label in range(unary.shape[0]):
+            u = unary[label, p]
+            if u < best:
+                best, second = u, best
+            elif u < second:
+                second = u
+        if np.isfinite(best):
+            out[p] = second > best + weigh[p] + 1e-9 * (1.0 + abs(best) + weigh[p])
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def expansion_terms(
+    unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64, nodes: I64
+) -> tuple[F64, F64, I64, I64, F64]:
+    """The α-expansion move's graph from `labels` (see `multicut._expand`) over the nodes
+    that may move (`nodes`; `local` ≥ 0: their number in the graph; the others keep their
+    label): each one's capacity from the source and to the sink, and the edges between
+    them (i, j, capacity from i to j). An edge to a node that keeps its label is a unary
+    term; edges between two such nodes may be left out of i, j, w.
+
+    With x_p = 1 for "take α", an edge's E(x_p, x_q) has A = E00, B = E01, C = E10 and
+    D = E11 = 0, so E = A + (C−A)·x_p + (D−C)·x_q + (B+C−A−D)·(1−x_p)·x_q."""
+    n = nodes.size
+    unary1 = np.empty(n)
+    for p in nodes:
+        unary1[local[p]] = unary[alpha, p] - unary[labels[p], p]
+    ri = np.empty(i.size, np.int64)
+    rj = np.empty(i.size, np.int64)
+    pair = np.empty(i.size)
+    m = 0
+    for e in range(i.size):
+        li, lj = labels[i[e]], labels[j[e]]
+        a = w[e] * (1.0 if li != lj else 0.0)
+        b = w[e] * (1.0 if li != alpha else 0.0)
+        c = w[e] * (1.0 if alpha != lj else 0.0)
+        p, q = local[i[e]], local[j[e]]
+        if p >= 0 and q >= 0:
+            unary1[p] += c - a
+            ri[m], rj[m] = p, q
+            pair[m] = b + c - a
+            m += 1
+        elif p >= 0:
+            unary1[p] += c - a  # x_q = 0
+        elif q >= 0:
+            unary1[q] += b - a  # x_p = 0
+    for e in range(i.size):
+        p, q = local[i[e]], local[j[e]]
+        if p >= 0 and q >= 0:
+            c = w[e] * (1.0 if alpha != labels[j[e]] else 0.0)
+            unary1[q] += -c
+    source = np.empty(n)
+    sink = np.empty(n)
+    for p in range(n):
+        x = unary1[p]
+        source[p] = x if (x >= 0.0 or x != x) else 0.0
+        y = -x
+        sink[p] = y if (y >= 0.0 or y != y) else 0.0
+    return source, sink, ri[:m], rj[:m], pair[:m]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def background_cost(
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, deadband: float, cap: float,
+    unknown: float,
+) -> F64:  # fmt: skip
+    """Each pixel's cost for the background (see `Tracker._background_cost`): half the
+    square of how far it stands in front of the scenery, in noise sigmas, less the
+    deadband, at most `cap`; `unknown` where the scenery is not known."""
+    h, w = model.shape
+    out = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            z = (model[v, u] - seen[v, u]) / sigma[v, u] if valid[v, u] and known[v, u] else 0.0
+            z = z - deadband
+            z = z if (z >= 0.0 or z != z) else 0.0
+            cost = 0.5 * z * z
+            cost = cost if (cost <= cap or cost != cost) else cap
+            out[v, u] = cost if known[v, u] else unknown
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def standing_out(
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, labels: npt.NDArray[np.uint16],
+    noise_factor: float, min_height: float,
+) -> B:  # fmt: skip
+    """`BackgroundModel.standing_out` where `labels` is 0 (what no track took)."""
+    h, w = model.shape
+    out = np.zeros((h, w), np.bool_)
+    for v in range(h):
+        for u in range(w):
+            if labels[v, u] == 0 and valid[v, u] and known[v, u]:
+                nearer = model[v, u] - seen[v, u]
+                out[v, u] = nearer > noise_factor * sigma[v, u] and nearer > min_height
+    return out
+
+
+def warm_up() -> None:
+    """Load (or compile) every kernel for the argument types the tracker calls it with, so
+    the first frames of a live run do not stall on it (about a second, once per process)."""
+    global _warm
+    if _warm:
+        return
+    f64, i64, yes = np.zeros((2, 2)), np.zeros((2, 2), np.int64), np.ones((2, 2), bool)
+    xyz, wt = np.zeros((2, 2, 3)), np.zeros((4, 2, 2))
+    rows, cols = np.nonzero(yes)  # non-contiguous, as np.nonzero gives them
+    one = np.zeros(1, np.int64)
+    tie_weights(*tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    free_edges(i64, wt, rows, cols)
+    add_fixed_ties(np.zeros((2, 4)), i64, wt, rows, cols)
+    add_fixed_ties_at(np.zeros(1), i64, wt, one, one)
+    points, ceiling = np.zeros((1, 3)), np.zeros(1)
+    starts = np.array([0, 1])
+    cloud, axes = sort_surfaces(points, starts)
+    track_distances(
+        points, ceiling, points, np.eye(3)[None], cloud, starts, axes, 1.0, 1.0, 1.0,
+        np.ones(1), 1.0,
+    )  # fmt: skip
+    cut_at_steps(yes, xyz, f64, 1.0, f64)
+    parts(1, one, one)
+    any_by_part(yes, np.zeros(2, np.int64), 1)
+    unary = np.zeros((2, 3))
+    for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
+        settled(layout, one, one, np.zeros(1))
+        expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
+    background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
+    standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
+    counts = np.zeros((2, 2), np.int32)
+    follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, yes, f64, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
+    _warm = True
+
+
+_warm = False

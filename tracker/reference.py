@@ -1,0 +1,225 @@
+"""The tracker's numpy reference: `ReferenceTracker` computes the cut and the pieces with the
+plain numpy code the compiled kernels (`tofcut.tracker.kernels`) replaced. Tests run both
+trackers over the same frames and require the same labels and tracks; it is not fast."""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from tofcut.driver.frames import Frame
+from tofcut.tracker.background import BLEND_SIGMAS, BLEND_VARIANCE_SHARE, BackgroundModel, near_any
+from tofcut.tracker.kernels import NEIGHBOURS
+from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.tracker import Tracker
+
+F64 = npt.NDArray[np.float64]
+B = npt.NDArray[np.bool_]
+I64 = npt.NDArray[np.int64]
+_Index = tuple[slice, slice]
+
+
+class ReferenceBackground(BackgroundModel):
+    """The empty-scene model following the scene in plain numpy."""
+
+    def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
+        p = self.params
+        usable = free & frame.valid
+        with np.errstate(invalid="ignore"):
+            deviation = frame.range - self.range
+            farther = usable & (deviation > p.noise_factor * self.sigma)
+        self._farther = np.where(farther, self._farther + 1, 0)
+        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
+        unknown = usable & ~self.known
+        self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
+        newly = self._unknown_seen >= p.reveal_frames
+        newly &= ~near_any(frame.xyz, newly, occupied, reach)
+        revealed = self._farther >= p.reveal_frames
+        blend = usable & self.known & (np.abs(deviation) <= BLEND_SIGMAS * self.sigma)
+        self.range[blend] += p.rate * deviation[blend]
+        var = self.sigma[blend] ** 2
+        var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
+        self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
+        self.range[revealed] = self._farther_min[revealed]
+        self.range[newly] = frame.range[newly]
+        self.sigma[newly] = noise[newly]
+        jump = revealed | newly
+        self._farther[jump] = 0
+        self._farther_min[jump] = np.inf
+        self._unknown_seen[newly] = 0
+        self.known |= newly
+
+
+class ReferenceTracker(Tracker):
+    """The tracker with every per-pixel step in plain numpy over the whole frame."""
+
+    background_model = ReferenceBackground
+
+    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
+        """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
+        sum of the weights at each pixel."""
+        p = self.params
+        h, w = frame.shape
+        valid = frame.valid
+        xyz = frame.xyz
+        ties = []
+        total = np.zeros((h, w))
+        for dv, du, factor in NEIGHBOURS:
+            a, b = _shifted(h, w, dv, du)
+            d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
+            wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
+            wt[~(valid[a] & valid[b])] = p.smoothness * factor
+            ties.append((a, b, wt))
+            total[a] += wt
+            total[b] += wt
+        return ties, total
+
+    def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
+        p = self.params
+        h, w = frame.shape
+        labels = np.zeros((h, w), np.uint16)
+        if not self._tracks:
+            return labels
+        valid = frame.valid
+        u0 = self._background_cost(frame)
+        u0[~valid] = 0.0
+        ties, total = self._ties(frame)
+        free = valid & (p.object_cost - u0 <= total)
+        if not free.any():
+            return labels
+        # the 3D distance term can only add cost: now fix what no track can win
+        first = np.nonzero(free)
+        cost = p.object_cost + p.beta * self._distances(frame.xyz[first], noise[first])
+        free[first] = cost.min(axis=0) - u0[first] <= total[first]
+        if not free.any():
+            return labels
+        column = np.full((h, w), -1, np.int64)
+        column[first] = np.arange(first[0].size)
+        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
+        keep = np.unique(runs[free])
+        free |= ~valid & np.isin(runs, keep[keep > 0])
+        n = int(free.sum())
+        index = np.full((h, w), -1, np.int64)
+        index[free] = np.arange(n)
+        where = np.nonzero(free)
+        unary = np.zeros((len(self._tracks) + 1, n))
+        unary[0] = u0[where]
+        known = column[where]  # invalid pixels have no column: no data cost either way
+        unary[1:, known >= 0] = cost[:, known[known >= 0]]
+        ei, ej, ew = [], [], []
+        for a, b, wt in ties:
+            ia, ib = index[a], index[b]
+            both = (ia >= 0) & (ib >= 0)
+            ei.append(ia[both])
+            ej.append(ib[both])
+            ew.append(wt[both])
+            # a free pixel beside a fixed one pays the tie for any object label
+            for mine, other in ((ia, ib), (ib, ia)):
+                edge = (mine >= 0) & (other < 0)
+                unary[1:] += np.bincount(mine[edge], wt[edge], minlength=n)
+        chosen = _solve_by_parts(
+            unary, np.concatenate(ei), np.concatenate(ej), np.concatenate(ew), total[where]
+        )
+        ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
+        labels[where] = ids[chosen]
+        return labels
+
+    def _distances(self, points: F64, noise: F64) -> F64:
+        p = self.params
+        spread = np.maximum(p.surface_sigma_m, np.sqrt(2.0) * noise)
+        reach = spread.max(initial=0.0) * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
+        out = np.empty((len(self._tracks), len(points)))
+        finite = np.isfinite(points).all(axis=1)
+        for k, t in enumerate(self._tracks):
+            d = points - t.filter.position
+            out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
+            if p.surface_weight > 0:
+                near = np.full(len(points), np.inf)
+                near[finite], _ = cKDTree(t.cloud).query(points[finite], distance_upper_bound=reach)
+                out[k] += p.surface_weight * (near / spread) ** 2
+        return np.where(np.isnan(out), np.inf, out)
+
+    def _background_cost(self, frame: Frame) -> F64:
+        p = self.params
+        bg = self.background
+        assert bg is not None
+        if not bg.ready:
+            return np.full(frame.shape, p.unknown_cost)
+        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
+        cost = np.minimum(0.5 * z * z, p.background_cap)
+        return np.where(bg.known, cost, p.unknown_cost)
+
+    def _loose(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> npt.NDArray[np.int32]:
+        bg = self.background
+        assert bg is not None
+        body = bg.standing_out(frame) & (labels == 0)
+        return self._pieces(frame, body)
+
+    def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
+        h, w = frame.shape
+        body = body.copy()
+        xyz = frame.xyz
+        spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
+        for dv, du in ((0, 1), (1, 0)):
+            a, b = _shifted(h, w, dv, du)
+            allowed = np.maximum(self.params.connect_m**2, spread2[a] + spread2[b])
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
+            far_a = jump & (frame.range[a] > frame.range[b])
+            far_b = jump & ~far_a
+            body[a] &= ~far_a
+            body[b] &= ~far_b
+        pieces, _ = ndimage.label(body)
+        return np.asarray(pieces, np.int32)
+
+
+def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
+    """Minimise the Potts energy part by part (see `tofcut.tracker.tracker`)."""
+    n = unary.shape[1]
+    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
+    parts, part_of = connected_components(graph, directed=False)
+    order = np.argsort(part_of, kind="stable")
+    bounds = np.searchsorted(part_of[order], np.arange(parts + 1))
+    edge_part = part_of[i]
+    edge_order = np.argsort(edge_part, kind="stable")
+    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(parts + 1))
+    local = np.empty(n, np.int64)
+    chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
+    cheapest = unary.min(axis=0)
+    binary: list[tuple[I64, I64, int]] = []
+    for k in np.unique(edge_part):
+        nodes = order[bounds[k] : bounds[k + 1]]
+        edges = edge_order[edge_bounds[k] : edge_bounds[k + 1]]
+        local[nodes] = np.arange(nodes.size)
+        sub = unary[:, nodes]
+        can_win = (sub <= cheapest[nodes] + ties[nodes]).any(axis=1)
+        can_win[0] = True
+        labels = np.nonzero(can_win)[0]
+        if labels.size == 2:
+            binary.append((nodes, edges, int(labels[1])))
+        elif labels.size > 2:
+            problem = PottsProblem(sub[labels], local[i[edges]], local[j[edges]], w[edges])
+            chosen[nodes] = labels[solve_potts(problem)]
+    if binary:
+        nodes = np.concatenate([b[0] for b in binary])
+        edges = np.concatenate([b[1] for b in binary])
+        track = np.concatenate([np.full(b[0].size, b[2]) for b in binary])
+        local[nodes] = np.arange(nodes.size)
+        pair = np.stack([unary[0, nodes], unary[track, nodes]])
+        problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
+        chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
+    return chosen
+
+
+def _shifted(h: int, w: int, dv: int, du: int) -> tuple[_Index, _Index]:
+    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
+    rows_a = slice(0, h - dv)
+    rows_b = slice(dv, h)
+    if du >= 0:
+        cols_a, cols_b = slice(0, w - du), slice(du, w)
+    else:
+        cols_a, cols_b = slice(-du, w), slice(0, w + du)
+    return (rows_a, cols_a), (rows_b, cols_b)
