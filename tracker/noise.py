@@ -19,19 +19,20 @@ F64 = npt.NDArray[np.float64]
 
 MAD_TO_SIGMA = 1.4826
 """A normal variable's σ over its median absolute value."""
+FIT_STRIDE = 4
 
 
 def range_noise(frame: Frame, floor_m: float) -> F64:
-    """(H, W) range noise σ of every pixel, metres, at least `floor_m` (inf where invalid)."""
-    valid = frame.valid
+    """(H, W) range noise σ of every pixel, metres, at least `floor_m` (inf where invalid).
+    The scale is fitted on every FIT_STRIDE-th row: plenty of pairs, a quarter of the work."""
     with np.errstate(divide="ignore", invalid="ignore"):
         shape = np.sqrt(np.maximum(frame.intensity, 0.0)) / frame.amplitude
-    shape[~valid | ~np.isfinite(shape)] = np.inf
-    r = frame.range
+    shape[~frame.valid | ~np.isfinite(shape)] = np.inf
+    r, s = frame.range[::FIT_STRIDE], shape[::FIT_STRIDE]
     second = r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]
-    spread = np.sqrt(shape[:, :-2] ** 2 + 4.0 * shape[:, 1:-1] ** 2 + shape[:, 2:] ** 2)
+    spread = np.sqrt(s[:, :-2] ** 2 + 4.0 * s[:, 1:-1] ** 2 + s[:, 2:] ** 2)
     usable = np.isfinite(spread) & (spread > 0)
     if not usable.any():
-        return np.where(valid, floor_m, np.inf)
+        return np.where(frame.valid, floor_m, np.inf)
     scale = MAD_TO_SIGMA * float(np.median(np.abs(second[usable]) / spread[usable]))
     return np.maximum(scale * shape, floor_m)
