@@ -50,6 +50,10 @@ SERIES = {
 """Time series under `status/`: entity name → what it shows."""
 
 TRAIL_FRAMES = 30
+STATUS_EVERY = 5
+"""The pipeline's health is logged every this many frames (10 a second at 50 fps), and at
+once when the rerun output itself drops frames: enough for its plots, and six fewer calls
+into rerun on the other frames."""
 """A trail shows where a track's centroid was over this many frames."""
 BACKGROUND_STRIDE = 2
 """Background points are thinned to every this-many-th pixel in u and in v."""
@@ -195,6 +199,7 @@ class FrameLogger:
         self._trails: dict[int, deque[npt.NDArray[np.float64]]] = {}
         self._context_ids: frozenset[int] | None = None
         self._belt_logged = False
+        self._dropped_logged = 0
         self._log_static()
 
     def _log_static(self) -> None:
@@ -230,7 +235,9 @@ class FrameLogger:
         self._log_tracks(tracked)
         if self.belt_direction is not None and not self._belt_logged:
             self._log_belt(tracked)
-        self._log_status(status, sink_dropped)
+        if f.sequence % STATUS_EVERY == 0 or sink_dropped != self._dropped_logged:
+            self._log_status(status, sink_dropped)
+            self._dropped_logged = sink_dropped
         for i in tracked.born:
             rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} born", level="INFO"))
         for i in tracked.ended:
@@ -260,10 +267,9 @@ class FrameLogger:
                 self.rec.disconnect()
 
     def _update_context(self, tracked: TrackedFrame) -> None:
-        """Re-log the annotation context when the set of live ids changes (ids never repeat)."""
+        """Re-log the annotation context when the set of live ids changes (ids never repeat;
+        every id in the masks is a track's)."""
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
-        labels = tracked.labels
-        ids |= frozenset(np.unique(labels[labels != 0]).tolist())
         if ids != self._context_ids:
             self.rec.log(WORLD, annotation_context(ids))
             self._context_ids = ids

@@ -551,6 +551,7 @@ class Tracker:
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels) if ready else None
         boxes = ndimage.find_objects(labels)
+        piece_boxes: list[tuple[slice, slice] | None] | None = None
         for t in self._tracks:
             box = boxes[t.id - 1] if t.id <= len(boxes) else None
             mask = labels[box] == t.id if box is not None else _NONE  # within the box
@@ -566,7 +567,9 @@ class Tracker:
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
                     near = np.unique(_beside(pieces, whole_mask, box))
-                    beside = self._continuing(frame, whole_mask, pieces, near[near > 0])
+                    if piece_boxes is None:
+                        piece_boxes = ndimage.find_objects(pieces)
+                    beside = self._continuing(frame, mask_pts, pieces, near[near > 0], piece_boxes)
                     if beside.size:
                         seen = whole_mask | np.isin(pieces, beside)
                         pieces[seen] = 0
@@ -685,24 +688,36 @@ class Tracker:
         return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
 
     def _continuing(
-        self, frame: Frame, mask: B, pieces: npt.NDArray[np.int32], near: npt.NDArray[np.int32]
+        self,
+        frame: Frame,
+        mask_pts: F64,
+        pieces: npt.NDArray[np.int32],
+        near: npt.NDArray[np.int32],
+        piece_boxes: list[tuple[slice, slice] | None],
     ) -> npt.NDArray[np.int32]:
-        """Which pieces beside a track coming into view are more of the same object: on a
-        belt, objects come into view along the belt, so such a piece lies within the track's
-        span across the belt (pieces smaller than MIN_PIECE are noise)."""
-        sizes = np.bincount(pieces.ravel(), minlength=int(pieces.max()) + 1)
-        near = near[sizes[near] >= MIN_PIECE]
-        if self.belt is None or near.size == 0:
-            return near
-        across = frame.xyz @ np.cross(self.belt.normal, self.belt.direction)
-        lo, hi = np.percentile(across[mask], [2, 98])
+        """Which pieces beside a track coming into view (seen at `mask_pts`) are more of the
+        same object: on a belt, objects come into view along the belt, so such a piece lies
+        within the track's span across the belt (pieces smaller than MIN_PIECE are noise).
+        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
+        across = None if self.belt is None else np.cross(self.belt.normal, self.belt.direction)
+        if across is not None:
+            span = mask_pts @ across
+            lo, hi = stats.percentile(span, 2), stats.percentile(span, 98)
         slack = self.params.connect_m
         keep = []
-        for r in near:
-            t_lo, t_hi = np.percentile(across[pieces == r], [5, 95])
-            keep.append(t_lo >= lo - slack and t_hi <= hi + slack)
-        out: npt.NDArray[np.int32] = near[np.array(keep, bool)]
-        return out
+        for r in near.tolist():
+            box = piece_boxes[r - 1]
+            assert box is not None
+            mine = pieces[box] == r
+            if np.count_nonzero(mine) < MIN_PIECE:
+                continue
+            if across is not None:
+                values = frame.xyz[box][mine] @ across
+                t_lo, t_hi = stats.percentile(values, 5), stats.percentile(values, 95)
+                if not (t_lo >= lo - slack and t_hi <= hi + slack):
+                    continue
+            keep.append(r)
+        return np.array(keep, np.int32)
 
     def _detect(
         self,
