@@ -358,8 +358,8 @@ class Tracker:
         """(N, 3) every track's predicted surface points."""
         return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
 
-    def _start(self, points: F64, shape: F64) -> int:
-        motion = ConstantVelocity(points.mean(axis=0), self.params.motion)
+    def _start(self, points: F64, shape: F64, velocity: F64 | None = None) -> int:
+        motion = ConstantVelocity(points.mean(axis=0), self.params.motion, velocity)
         track = _Live(self._next_id, motion, shape, _subsample(points, self.params.cloud_points))
         self._next_id += 1
         self._tracks.append(track)
@@ -658,8 +658,11 @@ class Tracker:
             if r in owner:
                 labels[surface] = self._tracks[owner[r]].id
             else:
+                # it moved with the track that held most of it
+                carrier = self._tracks[int(np.argmax(held[:, r]))].filter.velocity
                 pts = frame.xyz[surface]
-                labels[surface] = self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt))
+                shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
+                labels[surface] = self._start(pts, shape, carrier)
                 born.append(int(labels[surface][0]))
         for k in involved.tolist():
             t = self._tracks[k]
