@@ -9,7 +9,10 @@ its predicted surface (so two touching objects are told apart), and its cost for
 background with how far it stands out in front of the empty-scene range model. Pixels no
 track can win whatever their neighbours do are fixed to the background before the cut, so
 the graph holds only the pixels that matter. What stands out and no track can claim, two
-frames running, becomes a new track.
+frames running, becomes a new track. On a belt, a track holding two touching surfaces for a
+few frames has them dealt out again (two objects that came into view as one), and one that
+stays put while the belt runs becomes scenery. Each pixel's range noise
+(`tofcut.tracker.noise`) scales what counts as near on far, dark targets.
 """
 
 from __future__ import annotations
