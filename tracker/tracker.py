@@ -263,7 +263,13 @@ class Tracker:
                 # unseen, an object keeps the belt's pace; seen, its own motion decides
                 # (not everything in view rides the belt)
                 t.filter.follow_belt(prior)
-            t.cloud = t.cloud + (t.filter.position - before)
+            shift = t.filter.position - before
+            moved = t.cloud + shift
+            kept = self._sorted.get(t.id)
+            if kept is not None and kept[0] is t.cloud:
+                # a surface moved as a whole keeps its arrangement: move that along too
+                self._sorted[t.id] = (moved, kept[1] + shift, kept[2])
+            t.cloud = moved
         # before the scenery is known, a target is what is 3D-connected to where it is
         ready = self.background.ready
         labels = self._segment(frame, noise) if ready else self._grown(frame, noise)
