@@ -598,14 +598,9 @@ class Tracker:
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
-                pts = mask_pts
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
-                t.last = Track(
-                    t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
-                    bbox, n, pts.astype(np.float32),
-                )  # fmt: skip
+                t.last = _seen(t, mask_pts, box)
             else:
                 if box is not None:
                     labels[box][mask] = 0
@@ -773,7 +768,12 @@ class Tracker:
                 t = self._tracks[-1]
                 labels[piece] = t.id
                 t.usual_pixels = float(len(pts))
-                t.last = _seen(t, frame, piece)
+                rows, cols = np.nonzero(piece)
+                box = (
+                    slice(int(rows.min()), int(rows.max()) + 1),
+                    slice(int(cols.min()), int(cols.max()) + 1),
+                )
+                t.last = _seen(t, pts, box)
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
@@ -788,11 +788,9 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
     return int(v), int(u)
 
 
-def _seen(t: _Live, frame: Frame, mask: B) -> Track:
-    """What is reported of a track seen in `mask` this frame."""
-    pts = frame.xyz[mask]
-    rows, cols = np.nonzero(mask)
-    bbox = (int(cols.min()), int(rows.min()), int(cols.max()) + 1, int(rows.max()) + 1)
+def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
+    """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
+    bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
     return Track(
         t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
         bbox, len(pts), pts.astype(np.float32),
