@@ -74,6 +74,7 @@ class BackgroundModel:
         self._farther = np.zeros(shape, np.int32)
         self._farther_min = np.full(shape, np.inf)
         self._unknown_seen = np.zeros(shape, np.int32)
+        self._unknown_reads = np.full((self.params.reveal_frames, *shape), np.nan)
 
         self.ready = False
         """True once the learning frames are in."""
@@ -144,16 +145,18 @@ class BackgroundModel:
 
     def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
-        range once the pixel has read farther for `reveal_frames` frames in a row. A pixel
-        not known yet is learned after `reveal_frames` free frames (its noise `noise`, the
-        frame's), unless it lies within `reach` of one of the `occupied` (k, 3) points: an
-        object's part its track missed."""
+        range once the pixel has read farther for `reveal_frames` frames in a row, tracked
+        or not (nothing stands behind the scenery: the model was wrong there). A pixel
+        not known yet is learned after `reveal_frames` free frames in a row (the median of
+        their readings; its noise `noise`, the frame's), unless it lies within `reach` of
+        one of the `occupied` (k, 3) points: an object's part its track missed."""
         p = self.params
         usable = free & frame.valid
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
         kernels.follow_scene(
             self.range, self.sigma, self.known, self._farther, self._farther_min,
-            self._unknown_seen, frame.range, usable, near_any(frame.xyz, due, occupied, reach),
+            self._unknown_seen, self._unknown_reads, frame.range, frame.valid, usable,
+            near_any(frame.xyz, due, occupied, reach),
             noise, p.noise_factor, p.rate, p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS,
             BLEND_VARIANCE_SHARE,
         )  # fmt: skip

@@ -423,24 +423,28 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def follow_scene(
     model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
-    unknown_seen: npt.NDArray[np.int32], seen: F64, usable: B, hold: B, noise: F64,
-    noise_factor: float, rate: float, min_sigma: float, reveal_frames: int,
-    blend_sigmas: float, variance_share: float,
+    unknown_seen: npt.NDArray[np.int32], unknown_reads: F64, seen: F64, valid: B, usable: B,
+    hold: B, noise: F64, noise_factor: float, rate: float, min_sigma: float,
+    reveal_frames: int, blend_sigmas: float, variance_share: float,
 ) -> None:  # fmt: skip
     """`BackgroundModel.update`'s per-pixel arithmetic, in place, in one pass (see there):
-    `hold` marks pixels not to be learned yet, `noise` the frame's range noise."""
+    `valid` marks the pixels read, `usable` those free to follow, `hold` those not to be
+    learned yet, `noise` the frame's range noise; `unknown_reads` (reveal_frames, H, W)
+    the last free readings of each pixel not known yet."""
     h, w = model.shape
+    run = np.empty(reveal_frames)
     for v in range(h):
         for u in range(w):
             deviation = seen[v, u] - model[v, u]
             use = usable[v, u]
-            if use and deviation > noise_factor * sigma[v, u]:
+            if valid[v, u] and deviation > noise_factor * sigma[v, u]:
                 farther[v, u] += 1
                 farther_min[v, u] = min(farther_min[v, u], seen[v, u])
             else:
                 farther[v, u] = 0
                 farther_min[v, u] = np.inf
             if use and not known[v, u]:
+                unknown_reads[unknown_seen[v, u] % reveal_frames, v, u] = seen[v, u]
                 unknown_seen[v, u] += 1
             else:
                 unknown_seen[v, u] = 0
@@ -460,7 +464,13 @@ def follow_scene(
             if revealed:
                 model[v, u] = farther_min[v, u]
             if newly:
-                model[v, u] = seen[v, u]
+                # the median of its last free readings: one may be a flying pixel
+                for k in range(reveal_frames):
+                    run[k] = unknown_reads[k, v, u]
+                run.sort()
+                half = reveal_frames // 2
+                middle = run[half] if reveal_frames % 2 else (run[half - 1] + run[half]) / 2
+                model[v, u] = middle
                 sigma[v, u] = noise[v, u]
             if revealed or newly:
                 farther[v, u] = 0
@@ -612,7 +622,26 @@ def warm_up() -> None:
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
-    follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, yes, f64, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
+    follow_scene(
+        f64,
+        f64,
+        yes,
+        counts,
+        f64,
+        counts,
+        np.zeros((1, 1, 1)),
+        f64,
+        yes,
+        yes,
+        yes,
+        f64,
+        1.0,
+        1.0,
+        1.0,
+        1,
+        1.0,
+        1.0,
+    )
     _warm = True
 
 

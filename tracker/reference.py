@@ -31,10 +31,13 @@ class ReferenceBackground(BackgroundModel):
         usable = free & frame.valid
         with np.errstate(invalid="ignore"):
             deviation = frame.range - self.range
-            farther = usable & (deviation > p.noise_factor * self.sigma)
+            farther = frame.valid & (deviation > p.noise_factor * self.sigma)
         self._farther = np.where(farther, self._farther + 1, 0)
         self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
         unknown = usable & ~self.known
+        slot = self._unknown_seen % p.reveal_frames
+        rows, cols = np.nonzero(unknown)
+        self._unknown_reads[slot[rows, cols], rows, cols] = frame.range[rows, cols]
         self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
         newly = self._unknown_seen >= p.reveal_frames
         newly &= ~near_any(frame.xyz, newly, occupied, reach)
@@ -45,7 +48,7 @@ class ReferenceBackground(BackgroundModel):
         var += p.rate * (deviation[blend] ** 2 / BLEND_VARIANCE_SHARE - var)
         self.sigma[blend] = np.maximum(np.sqrt(var), p.min_sigma_m)
         self.range[revealed] = self._farther_min[revealed]
-        self.range[newly] = frame.range[newly]
+        self.range[newly] = np.median(self._unknown_reads, axis=0)[newly]
         self.sigma[newly] = noise[newly]
         jump = revealed | newly
         self._farther[jump] = 0
@@ -153,11 +156,13 @@ class ReferenceTracker(Tracker):
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
 
-    def _loose(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> npt.NDArray[np.int32]:
+    def _loose(
+        self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64
+    ) -> npt.NDArray[np.int32]:
         bg = self.background
         assert bg is not None
         body = bg.standing_out(frame) & (labels == 0)
-        return self._pieces(frame, body)
+        return self._pieces(frame, body, noise if self.belt is None else None)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         h, w = frame.shape

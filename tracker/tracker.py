@@ -88,11 +88,12 @@ class TrackerParams:
     whole_fraction: float = 0.85
     """A view within this share of the track's usual size (either way) shows the whole
     object, and is measured; others are partial (occlusion) or tainted."""
-    keep_clear_m: float = 0.5
-    """Pixels this near a track's surface are never learned as scenery: they are likely
-    parts of it the cut missed (a target standing in view from the first frame)."""
+    keep_clear_m: float = 0.15
+    """Pixels this near a track's surface are not learned as scenery: they are likely parts
+    of it the cut missed (a target standing in view from the first frame, its feet)."""
     seed_radius_m: float = 1.0
-    """A seeded target is the surface connected to its seed within this distance of it."""
+    """A seeded target is what lies within this distance of its seed, connected to it in
+    the image."""
     surface_weight: float = 0.2
     """Weight of the distance from the track's predicted surface, (d/s)², added to the
     shape's: the shape bounds an object's extent, the surface tells two neighbours apart."""
@@ -156,6 +157,8 @@ class _Live:
     anchor: F64 | None = None
     """Where the track has been seen staying, and for how long (`still_s`)."""
     still_s: float = 0.0
+    seed: F64 | None = None
+    """A seeded target's seed point, from its centroid."""
     last: Track | None = None
 
 
@@ -179,11 +182,15 @@ def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
     )
 
 
-def _beside(pieces: npt.NDArray[np.int32], mask: B, box: tuple[slice, slice]) -> I32:
-    """`pieces[binary_dilation(mask, _EIGHT)]`, from the mask's box and a pixel around it."""
-    rows = slice(max(box[0].start - 1, 0), box[0].stop + 1)
-    cols = slice(max(box[1].start - 1, 0), box[1].stop + 1)
-    out: I32 = pieces[rows, cols][ndimage.binary_dilation(mask[rows, cols], _EIGHT)]
+def _beside(
+    pieces: npt.NDArray[np.int32], mask: B, box: tuple[slice, slice], reach: int = 1
+) -> I32:
+    """`pieces[binary_dilation(mask, _EIGHT, reach)]`, from the mask's box and `reach`
+    pixels around it."""
+    rows = slice(max(box[0].start - reach, 0), box[0].stop + reach)
+    cols = slice(max(box[1].start - reach, 0), box[1].stop + reach)
+    ring = ndimage.binary_dilation(mask[rows, cols], _EIGHT, iterations=reach)
+    out: I32 = pieces[rows, cols][ring]
     return out
 
 
@@ -255,7 +262,7 @@ class Tracker:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
         self._last_time_us = frame.device_time_us
         noise = range_noise(frame, p.background.min_sigma_m)
-        born = self._take_seeds(frame, noise)
+        born = self._take_seeds(frame)
         for t in self._tracks:
             before = t.filter.position
             t.filter.predict(dt)
@@ -270,9 +277,9 @@ class Tracker:
                 # a surface moved as a whole keeps its arrangement: move that along too
                 self._sorted[t.id] = (moved, kept[1] + shift, kept[2])
             t.cloud = moved
-        # before the scenery is known, a target is what is 3D-connected to where it is
+        # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
-        labels = self._segment(frame, noise) if ready else self._grown(frame, noise)
+        labels = self._segment(frame, noise) if ready else self._grown(frame)
         found, ended = self._measure(frame, labels, dt, noise)
         born += found
         if ready and prior is not None:
@@ -323,9 +330,9 @@ class Tracker:
 
     # --- seeds ----------------------------------------------------------------------------
 
-    def _take_seeds(self, frame: Frame, noise: F64) -> list[int]:
-        """Start the targets given by the user: each is the surface 3D-connected to its seed
-        within `seed_radius_m` of it (so it is followed whole from the first frame)."""
+    def _take_seeds(self, frame: Frame) -> list[int]:
+        """Start the targets given by the user, each as the region round its seed
+        (`_region`), so it is followed whole from the first frame."""
         born = []
         h, w = frame.shape
         for pixel, point in self._seeds:
@@ -338,29 +345,36 @@ class Tracker:
                     raise ValueError(f"seed pixel {pixel} is outside the {w}x{h} frame")
                 if not frame.valid[v, u]:
                     raise ValueError(f"seed pixel {pixel} is not valid in this frame")
-            pts = frame.xyz[self._region(frame, noise, v, u)]
+            seed = frame.xyz[v, u]
+            pts = frame.xyz[self._region(frame, seed)]
             born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
+            self._tracks[-1].seed = seed - self._tracks[-1].filter.position
         self._seeds.clear()
         return born
 
-    def _region(self, frame: Frame, noise: F64, v: int, u: int) -> B:
-        """The surface 3D-connected to pixel (u, v) within `seed_radius_m` of it."""
+    def _region(self, frame: Frame, centre: F64) -> B:
+        """A seeded target: the pixels within `seed_radius_m` of the 3D point `centre`
+        connected in the image to the one nearest it (the paper's µ_d and its 3D distance:
+        a body, an arm in front of it and the legs below it, but not the floor and walls
+        beyond that distance)."""
+        v, u = _nearest_pixel(frame, centre)
         ball = frame.valid & (
-            np.linalg.norm(frame.xyz - frame.xyz[v, u], axis=-1) < self.params.seed_radius_m
+            np.linalg.norm(frame.xyz - centre, axis=-1) < self.params.seed_radius_m
         )
-        pieces = self._pieces(frame, ball, noise)
-        region: B = pieces == pieces[v, u] if pieces[v, u] else np.zeros_like(ball)
-        region[v, u] = True
+        ball[v, u] = True
+        parts, _ = ndimage.label(ball, _EIGHT)
+        region: B = parts == parts[v, u]
         return region
 
-    def _grown(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
-        """Labels while the scenery is being learned: each track is the surface connected to
-        the pixel nearest its prediction (a cut needs the scenery; pixels left out of the
+    def _grown(self, frame: Frame) -> npt.NDArray[np.uint16]:
+        """Labels while the scenery is being learned: each seeded track is the region round
+        its seed, moved on with the track (a cut needs the scenery; pixels left out of the
         target now would be learned as scenery)."""
         labels = np.zeros(frame.shape, np.uint16)
         for t in self._tracks:
-            region = self._region(frame, noise, *_nearest_pixel(frame, t.filter.position))
-            labels[region & (labels == 0)] = t.id
+            if t.seed is not None:
+                region = self._region(frame, t.filter.position + t.seed)
+                labels[region & (labels == 0)] = t.id
         return labels
 
     def _track_points(self) -> F64:
@@ -526,7 +540,9 @@ class Tracker:
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
-    def _loose(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> npt.NDArray[np.int32]:
+    def _loose(
+        self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64
+    ) -> npt.NDArray[np.int32]:
         """Pieces of surface that stand out of the scenery and no track took, split where
         neighbours are farther apart in 3D than `connect_m` (touching objects of different
         heights come apart; one object's pixels stay together)."""
@@ -537,7 +553,10 @@ class Tracker:
             bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
             q.min_height_m,
         )  # fmt: skip
-        return self._pieces(frame, body)
+        # on a belt, boxes of different heights touch: a step of `connect_m` parts them
+        # whatever the noise; elsewhere (a person metres away) a step within the noise
+        # does not break a limb into specks
+        return self._pieces(frame, body, noise if self.belt is None else None)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
@@ -558,7 +577,7 @@ class Tracker:
         keep: list[_Live] = []
         born = self._reconcile(frame, labels)
         ready = self.background is not None and self.background.ready
-        pieces = self._loose(frame, labels) if ready else None
+        pieces = self._loose(frame, labels, noise) if ready else None
         boxes = ndimage.find_objects(labels)
         piece_boxes: list[tuple[slice, slice] | None] | None = None
         for t in self._tracks:
@@ -567,21 +586,25 @@ class Tracker:
             n = int(np.count_nonzero(mask))
             if n >= p.min_pixels:
                 assert box is not None
-                mask_pts = frame.xyz[box][mask]
-                pts = mask_pts
+                pts = frame.xyz[box][mask]
                 entering = _on_border(box, labels.shape)
-                if pieces is not None and entering:
-                    # an object coming into view is bigger than its mask: what stands out
-                    # right beside it is the rest of it
+                if pieces is not None and (entering or self.belt is None):
+                    # an object coming into view is bigger than its mask, and one that need
+                    # not be rigid (no belt: a person) may have moved a limb where its
+                    # prediction did not reach: what stands out right beside it is the rest
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
-                    near = np.unique(_beside(pieces, whole_mask, box))
+                    # across a 3D step, what stands out lies past the seam the step leaves
+                    seam = 1 if self.belt is not None else 2
+                    near = np.unique(_beside(pieces, whole_mask, box, seam))
                     if piece_boxes is None:
                         piece_boxes = ndimage.find_objects(pieces)
-                    beside = self._continuing(frame, mask_pts, pieces, near[near > 0], piece_boxes)
+                    beside = self._continuing(frame, pts, pieces, near[near > 0], piece_boxes)
                     if beside.size:
                         seen = whole_mask | np.isin(pieces, beside)
                         pieces[seen] = 0
+                        labels[seen] = t.id
+                        box = _box_of(seen)
                         pts = frame.xyz[seen]
                 m = len(pts)
                 usual = t.usual_pixels
@@ -600,7 +623,7 @@ class Tracker:
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
                 t.hidden_s = 0.0
                 t.hidden_frames = 0
-                t.last = _seen(t, mask_pts, box)
+                t.last = _seen(t, pts, box)
             else:
                 if box is not None:
                     labels[box][mask] = 0
@@ -768,12 +791,7 @@ class Tracker:
                 t = self._tracks[-1]
                 labels[piece] = t.id
                 t.usual_pixels = float(len(pts))
-                rows, cols = np.nonzero(piece)
-                box = (
-                    slice(int(rows.min()), int(rows.max()) + 1),
-                    slice(int(cols.min()), int(cols.max()) + 1),
-                )
-                t.last = _seen(t, pts, box)
+                t.last = _seen(t, pts, _box_of(piece))
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
@@ -786,6 +804,12 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
     dist[~frame.valid] = np.inf
     v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
     return int(v), int(u)
+
+
+def _box_of(mask: B) -> tuple[slice, slice]:
+    """The bounding slices (rows, columns) of a mask that is not empty."""
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
 def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
