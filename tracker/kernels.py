@@ -623,25 +623,9 @@ def warm_up() -> None:
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(
-        f64,
-        f64,
-        yes,
-        counts,
-        f64,
-        counts,
-        np.zeros((1, 1, 1)),
-        f64,
-        yes,
-        yes,
-        yes,
-        f64,
-        1.0,
-        1.0,
-        1.0,
-        1,
-        1.0,
-        1.0,
-    )
+        f64, f64, yes, counts, f64, counts, np.zeros((1, 1, 1)), f64, yes, yes, yes, f64, 1.0,
+        1.0, 1.0, 1, 1.0, 1.0,
+    )  # fmt: skip
     _warm = True
 
 
