@@ -271,15 +271,58 @@ def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
         assert classes[i]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
 
 
-def test_points_boxes_and_trails_carry_the_track_colours(recording, run):
+def test_images_come_back_as_logged(recording, run):
     path, _ = recording
     _, _, frames = run
     tracked = frames[12][0]
-    colours = np.array(rows_on(path, "world/points", "Points3D:colors")[tracked.sequence])
+    f = tracked.frame
+    h, w = f.shape
+
+    def image(entity: str, archetype: str, dtype: type) -> np.ndarray:
+        (fmt,) = rows_on(path, entity, f"{archetype}:format")[tracked.sequence]
+        assert (fmt["width"], fmt["height"]) == (w, h)
+        (buffer,) = rows_on(path, entity, f"{archetype}:buffer")[tracked.sequence]
+        return np.array(buffer, np.uint8).view(dtype).reshape(h, w)
+
+    # Depth: z in millimetres (meter 1000), to within rounding; 0 where invalid.
+    depth = image("world/camera/depth", "DepthImage", np.uint16)
+    assert rows_on(path, "world/camera/depth", "DepthImage:meter")[tracked.sequence] == [1000.0]
+    assert np.all(depth[~f.valid] == 0)
+    assert np.abs(depth[f.valid] / 1000.0 - f.xyz[..., 2][f.valid]).max() <= 0.0005 + 1e-9
+    # Amplitude and intensity: 8-bit grey on their fixed square-root scales.
+    for entity, counts in (("amplitude", f.amplitude), ("intensity", f.intensity)):
+        grey = image(f"world/camera/{entity}", "Image", np.uint8)
+        full = rerun_log.IMAGE_FULL_SCALE[entity]
+        expected = 255.0 * np.sqrt(np.clip(counts / full, 0.0, 1.0))
+        assert np.abs(grey - expected).max() <= 1.0
+        assert grey.max() > 0
+
+
+def test_points_boxes_and_trails_carry_the_track_ids(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    tracked = frames[12][0]
+    f = tracked.frame
+    classes = np.array(rows_on(path, "world/points", "Points3D:class_ids")[tracked.sequence])
+    positions = np.array(rows_on(path, "world/points", "Points3D:positions")[tracked.sequence])
+    assert len(positions) == len(classes)
+    for t in tracked.tracks:
+        assert np.array_equal(positions[classes == t.id], t.points)
+    # the background, thinned to every 2nd pixel in u and v, is class 0
+    s = rerun_log.BACKGROUND_STRIDE
+    keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
+    assert np.array_equal(positions[classes == 0], f.xyz[::s, ::s][keep].astype(np.float32))
+    assert set(np.unique(classes)) == {0} | {t.id for t in tracked.tracks}
+    # The point cloud's own annotation context: class 0 dim grey, each track its colour.
+    contexts = rows_on(path, "world/points", "AnnotationContext:context")
+    (context,) = contexts[max(t for t in contexts if t <= tracked.sequence)]
+    info = {c["class_id"]: c["class_description"]["info"] for c in context}
+    r, g, b = rerun_log.BACKGROUND_RGB
+    assert info[0]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
     for t in tracked.tracks:
         r, g, b = track_color(t.id)
-        rgba = (r << 24) | (g << 16) | (b << 8) | 0xFF
-        assert np.count_nonzero(colours == rgba) == len(t.points)
+        assert info[t.id]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
+        assert info[t.id]["label"] == f"track {t.id}"
     boxes = rows_on(path, "world/tracks", "Boxes3D:class_ids")[tracked.sequence]
     assert sorted(boxes) == sorted(t.id for t in tracked.tracks)
     trails = rows_on(path, "world/trails", "LineStrips3D:strips")[tracked.sequence]

@@ -9,12 +9,22 @@ from __future__ import annotations
 
 import colorsys
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 import rerun as rr
 import rerun.blueprint as rrb
+from rerun.components import (
+    ClassIdBatch,
+    HalfSize3DBatch,
+    ImageBufferBatch,
+    LineStrip3DBatch,
+    Position3DBatch,
+    ScalarBatch,
+    TextBatch,
+)
 
 from tofcut.driver.calibration import Calibration
 from tofcut.tools.status import PipelineStatus
@@ -57,7 +67,11 @@ into rerun on the other frames."""
 """A trail shows where a track's centroid was over this many frames."""
 BACKGROUND_STRIDE = 2
 """Background points are thinned to every this-many-th pixel in u and in v."""
+BACKGROUND_MASK = rr.AnnotationInfo(0, "background", (0, 0, 0, 0))
+"""Class 0 of the masks, boxes and trails: see-through."""
 BACKGROUND_RGB = (96, 96, 96)
+BACKGROUND_POINTS = rr.AnnotationInfo(0, "background", BACKGROUND_RGB)
+"""Class 0 of the point cloud (its own context): the thinned background, dim grey."""
 IMAGE_FULL_SCALE = {"amplitude": 8191.5, "intensity": 16383.0}
 """Counts shown as white: amplitude is at most half, intensity at most all of a 14-bit tap."""
 BELT_ARROW_M = 0.3
@@ -78,9 +92,23 @@ def track_label(track_id: int) -> str:
     return f"track {track_id}"
 
 
-def annotation_context(track_ids: Iterable[int]) -> rr.AnnotationContext:
-    """Class 0 is the see-through background; each track id gets its label and colour."""
-    classes: list[rr.AnnotationInfo] = [rr.AnnotationInfo(0, "background", (0, 0, 0, 0))]
+POINT_POSITIONS = rr.Points3D.descriptor_positions()
+POINT_CLASSES = rr.Points3D.descriptor_class_ids()
+BOX_CENTERS = rr.Boxes3D.descriptor_centers()
+BOX_HALF_SIZES = rr.Boxes3D.descriptor_half_sizes()
+BOX_CLASSES = rr.Boxes3D.descriptor_class_ids()
+BOX_LABELS = rr.Boxes3D.descriptor_labels()
+TRAIL_STRIPS = rr.LineStrips3D.descriptor_strips()
+TRAIL_CLASSES = rr.LineStrips3D.descriptor_class_ids()
+SCALARS = rr.Scalars.descriptor_scalars()
+
+
+def annotation_context(
+    track_ids: Iterable[int],
+    background: rr.AnnotationInfo = BACKGROUND_MASK,
+) -> rr.AnnotationContext:
+    """Class 0 is the background as given; each track id gets its label and colour."""
+    classes: list[rr.AnnotationInfo] = [background]
     classes += [
         rr.AnnotationInfo(i, track_label(i), track_color(i)) for i in sorted(set(track_ids))
     ]
@@ -159,31 +187,54 @@ def depth_mm(tracked: TrackedFrame) -> npt.NDArray[np.uint16]:
     return np.clip(np.rint(z * 1000.0), 0, 65535).astype(np.uint16)
 
 
-def packed_rgba(rgb: tuple[int, int, int]) -> int:
-    """0xRRGGBBFF, rerun's own colour format: given so, rerun need not convert every point's."""
-    r, g, b = rgb
-    return (r << 24) | (g << 16) | (b << 8) | 0xFF
-
-
-def cloud(tracked: TrackedFrame) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint32]]:
-    """Each track's points in its colour, then the thinned background in dim grey."""
+def cloud(tracked: TrackedFrame) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
+    """Each track's points with its id as class, then the thinned background as class 0."""
     f = tracked.frame
     s = BACKGROUND_STRIDE
     keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
-    parts = [t.points.astype(np.float32, copy=False) for t in tracked.tracks if len(t.points)]
-    colours = [
-        np.full(len(t.points), packed_rgba(track_color(t.id)), np.uint32)
-        for t in tracked.tracks
-        if len(t.points)
-    ]
+    tracks = [t for t in tracked.tracks if len(t.points)]
     background = f.xyz[::s, ::s][keep].astype(np.float32)
-    parts.append(background)
-    colours.append(np.full(len(background), packed_rgba(BACKGROUND_RGB), np.uint32))
-    return np.concatenate(parts), np.concatenate(colours)
+    positions = np.concatenate(
+        [*(t.points.astype(np.float32, copy=False) for t in tracks), background]
+    )
+    ids = np.array([*(t.id for t in tracks), 0], np.uint16)
+    counts = [*(len(t.points) for t in tracks), len(background)]
+    return positions, np.repeat(ids, counts)
+
+
+class ImageRows:
+    """Rows of one image entity at the cost of its pixels alone: the archetype's other fields
+    (format, meter) are built once per shape and dtype and sent again as they are."""
+
+    def __init__(self, archetype: Callable[[npt.NDArray[Any]], rr.AsComponents]) -> None:
+        self._archetype = archetype
+        self._fields: dict[tuple[tuple[int, ...], str], list[rr.DescribedComponentBatch]] = {}
+        self._buffer: rr.ComponentDescriptor | None = None
+
+    def row(self, pixels: npt.NDArray[Any]) -> list[rr.DescribedComponentBatch]:
+        key = (pixels.shape, pixels.dtype.str)
+        fields = self._fields.get(key)
+        if fields is None:
+            fields = []
+            for batch in self._archetype(pixels).as_component_batches():
+                descriptor = batch.component_descriptor()
+                if descriptor.component.endswith(":buffer"):
+                    self._buffer = descriptor
+                else:
+                    fields.append(batch)
+            self._fields[key] = fields
+        assert self._buffer is not None
+        data = np.ascontiguousarray(pixels).reshape(-1).view(np.uint8)
+        return [rr.DescribedComponentBatch(ImageBufferBatch(data), self._buffer), *fields]
 
 
 class FrameLogger:
-    """Logs tracked frames, pipeline health and events to one recording stream."""
+    """Logs tracked frames, pipeline health and events to one recording stream.
+
+    Every frame's rows are component batches under the archetypes' own descriptors, built
+    straight from the arrays: the same rows `rr.log` of the archetypes would write, without
+    the archetypes' per-call conversions, which were most of the worker's Python time.
+    """
 
     def __init__(
         self,
@@ -196,10 +247,14 @@ class FrameLogger:
         self.belt_direction = (
             None if belt_direction is None else np.asarray(belt_direction, np.float64)
         )
-        self._trails: dict[int, deque[npt.NDArray[np.float64]]] = {}
+        self._trails: dict[int, deque[npt.NDArray[np.float32]]] = {}
         self._context_ids: frozenset[int] | None = None
         self._belt_logged = False
         self._dropped_logged = 0
+        self._depth = ImageRows(lambda z: rr.DepthImage(z, meter=1000.0))
+        self._amplitude = ImageRows(rr.Image)
+        self._intensity = ImageRows(rr.Image)
+        self._masks = ImageRows(rr.SegmentationImage)
         self._log_static()
 
     def _log_static(self) -> None:
@@ -226,12 +281,18 @@ class FrameLogger:
         rec.set_time(SEQUENCE, sequence=f.sequence)
         rec.set_time(DEVICE_TIME, duration=f.device_time_us * 1e-6)
         self._update_context(tracked)
-        rec.log(DEPTH, rr.DepthImage(depth_mm(tracked), meter=1000.0))
-        rec.log(AMPLITUDE, rr.Image(gray8(f.amplitude, IMAGE_FULL_SCALE["amplitude"])))
-        rec.log(INTENSITY, rr.Image(gray8(f.intensity, IMAGE_FULL_SCALE["intensity"])))
-        rec.log(MASKS, rr.SegmentationImage(tracked.labels))
-        positions, colours = cloud(tracked)
-        rec.log(POINTS, rr.Points3D(positions, colors=colours))
+        rec.log(DEPTH, self._depth.row(depth_mm(tracked)))
+        rec.log(AMPLITUDE, self._amplitude.row(gray8(f.amplitude, IMAGE_FULL_SCALE["amplitude"])))
+        rec.log(INTENSITY, self._intensity.row(gray8(f.intensity, IMAGE_FULL_SCALE["intensity"])))
+        rec.log(MASKS, self._masks.row(tracked.labels))
+        positions, classes = cloud(tracked)
+        rec.log(
+            POINTS,
+            [
+                rr.DescribedComponentBatch(Position3DBatch(positions), POINT_POSITIONS),
+                rr.DescribedComponentBatch(ClassIdBatch(classes), POINT_CLASSES),
+            ],
+        )
         self._log_tracks(tracked)
         if self.belt_direction is not None and not self._belt_logged:
             self._log_belt(tracked)
@@ -267,11 +328,12 @@ class FrameLogger:
                 self.rec.disconnect()
 
     def _update_context(self, tracked: TrackedFrame) -> None:
-        """Re-log the annotation context when the set of live ids changes (ids never repeat;
+        """Re-log the annotation contexts when the set of live ids changes (ids never repeat;
         every id in the masks is a track's)."""
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
         if ids != self._context_ids:
             self.rec.log(WORLD, annotation_context(ids))
+            self.rec.log(POINTS, annotation_context(ids, BACKGROUND_POINTS))
             self._context_ids = ids
 
     def _log_tracks(self, tracked: TrackedFrame) -> None:
@@ -284,19 +346,34 @@ class FrameLogger:
                 del self._trails[i]
         for t in tracks:
             self._trails.setdefault(t.id, deque(maxlen=TRAIL_FRAMES)).append(
-                np.asarray(t.centroid, np.float64)
+                np.asarray(t.centroid, np.float32)
             )
-        ids = [t.id for t in tracks]
+        ids = np.array([t.id for t in tracks], np.uint16)
         labels = [
             track_label(t.id) if t.visible else f"{track_label(t.id)} (hidden)" for t in tracks
         ]
         mins = np.array([t.box_min for t in tracks], np.float64).reshape(-1, 3)
         maxs = np.array([t.box_max for t in tracks], np.float64).reshape(-1, 3)
-        self.rec.log(BOXES, rr.Boxes3D(mins=mins, sizes=maxs - mins, class_ids=ids, labels=labels))
-        trails = [(i, np.array(self._trails[i])) for i in ids if len(self._trails[i]) > 1]
+        self.rec.log(
+            BOXES,
+            [
+                rr.DescribedComponentBatch(Position3DBatch((mins + maxs) / 2), BOX_CENTERS),
+                rr.DescribedComponentBatch(HalfSize3DBatch((maxs - mins) / 2), BOX_HALF_SIZES),
+                rr.DescribedComponentBatch(ClassIdBatch(ids), BOX_CLASSES),
+                rr.DescribedComponentBatch(TextBatch(labels), BOX_LABELS),
+            ],
+        )
+        trails = [(t.id, self._trails[t.id]) for t in tracks if len(self._trails[t.id]) > 1]
         self.rec.log(
             TRAILS,
-            rr.LineStrips3D([s for _, s in trails], class_ids=[i for i, _ in trails]),
+            [
+                rr.DescribedComponentBatch(
+                    LineStrip3DBatch([np.array(trail) for _, trail in trails]), TRAIL_STRIPS
+                ),
+                rr.DescribedComponentBatch(
+                    ClassIdBatch(np.array([i for i, _ in trails], np.uint16)), TRAIL_CLASSES
+                ),
+            ],
         )
 
     def _log_belt(self, tracked: TrackedFrame) -> None:
@@ -329,4 +406,7 @@ class FrameLogger:
         }
         for name, value in values.items():
             if value is not None:
-                self.rec.log(f"{STATUS}/{name}", rr.Scalars(float(value)))
+                self.rec.log(
+                    f"{STATUS}/{name}",
+                    [rr.DescribedComponentBatch(ScalarBatch(float(value)), SCALARS)],
+                )
