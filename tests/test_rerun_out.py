@@ -13,6 +13,7 @@ import sys
 import threading
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -192,6 +193,18 @@ def all_rows(
     return out
 
 
+def static_value(path: Path, entity: str, component: str) -> object:
+    """The static value of one component of one entity (the last one logged)."""
+    values = []
+    for ch in chunks(path):
+        if ch.entity_path == f"/{entity}" and ch.is_static:
+            batch = ch.to_record_batch()
+            names = [n for n in batch.schema.names if n.endswith(component)]
+            values += [v for name in names for v in batch.column(name).to_pylist() if v is not None]
+    assert values, f"no static {component} on {entity}"
+    return values[-1]
+
+
 def rows_on(path: Path, entity: str, component: str, timeline: str = "sequence") -> dict:
     """{time: value} of one component of one entity, on one timeline."""
     return dict(all_rows(path, entity, component, timeline))
@@ -279,14 +292,15 @@ def test_images_come_back_as_logged(recording, run):
     h, w = f.shape
 
     def image(entity: str, archetype: str, dtype: type) -> np.ndarray:
-        (fmt,) = rows_on(path, entity, f"{archetype}:format")[tracked.sequence]
+        # the format is logged once, static; each frame holds only its pixels
+        (fmt,) = static_value(path, entity, f"{archetype}:format")
         assert (fmt["width"], fmt["height"]) == (w, h)
         (buffer,) = rows_on(path, entity, f"{archetype}:buffer")[tracked.sequence]
         return np.array(buffer, np.uint8).view(dtype).reshape(h, w)
 
     # Depth: z in millimetres (meter 1000), to within rounding; 0 where invalid.
     depth = image("world/camera/depth", "DepthImage", np.uint16)
-    assert rows_on(path, "world/camera/depth", "DepthImage:meter")[tracked.sequence] == [1000.0]
+    assert static_value(path, "world/camera/depth", "DepthImage:meter") == [1000.0]
     assert np.all(depth[~f.valid] == 0)
     assert np.abs(depth[f.valid] / 1000.0 - f.xyz[..., 2][f.valid]).max() <= 0.0005 + 1e-9
     # Amplitude and intensity: 8-bit grey on their fixed square-root scales.
@@ -370,20 +384,20 @@ def test_health_and_events_are_logged(recording, run):
 
 
 class Stall:
-    """Blocks the sink's writer on its first frame until released."""
+    """Blocks the sink's writer on its first batch of frames until released."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.entered = threading.Event()
         self.release = threading.Event()
-        original = FrameLogger.write_frame
+        original = FrameLogger.write_frames
 
-        def write_frame(logger: FrameLogger, *args: object) -> None:
+        def write_frames(logger: FrameLogger, *args: Any) -> None:
             if not self.entered.is_set():
                 self.entered.set()
                 assert self.release.wait(60), "the test never released the writer"
             original(logger, *args)
 
-        monkeypatch.setattr(FrameLogger, "write_frame", write_frame)
+        monkeypatch.setattr(FrameLogger, "write_frames", write_frames)
 
 
 def frame_sequences(path: Path) -> list[int]:
@@ -463,13 +477,48 @@ def test_a_file_waits_for_rerun_to_write_every_few_frames(tmp_path, run, monkeyp
     synced_after: list[int] = []
     monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 5)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=lossless)
-    monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written + 1))
+    monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written))
     for f in frames[:12]:
         sink.log(*f)
     sink.close()
     # rerun's own queue to a file is unbounded: a file's worker lets it drain every 5 frames;
     # a live viewer's pushes back by itself.
     assert synced_after == ([5, 10] if lossless else [])
+
+
+def test_frames_are_written_in_batches_and_a_lone_frame_is_not_held_back(
+    tmp_path, run, monkeypatch
+):
+    calibration, belt, frames = run
+    batches: list[list[int]] = []
+    written = threading.Event()
+    original = FrameLogger.write_frames
+
+    def write_frames(logger: FrameLogger, rows: Any, dropped: int) -> None:
+        batches.append([row.tracked.sequence for row in rows])
+        original(logger, rows, dropped)
+        written.set()
+
+    monkeypatch.setattr(FrameLogger, "write_frames", write_frames)
+    # A file: SYNC_FRAMES at a time (the delay is made long, so only the batch size counts);
+    # what is left goes when the sink closes.
+    monkeypatch.setattr("tofcut.tools.rerun_sink.FILE_DELAY_S", 600.0)
+    path = tmp_path / "file.rrd"
+    sink = RerunSink(calibration, RerunTarget.save(path), belt)
+    for tracked, status in frames[:20]:
+        sink.log(tracked, status)
+    sink.close()
+    assert [len(b) for b in batches] == [16, 4]
+    assert [i for b in batches for i in b] == [t.sequence for t, _ in frames[:20]]
+    assert frame_sequences(path) == [t.sequence for t, _ in frames[:20]]
+    # A live viewer: one frame alone is written once it has waited LIVE_DELAY_S, not later.
+    batches.clear()
+    written.clear()
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "live.rrd"), belt, lossless=False)
+    sink.log(*frames[0])
+    assert written.wait(60)
+    assert batches == [[frames[0][0].sequence]]
+    sink.close()
 
 
 def test_a_live_viewer_that_never_recovers_cannot_hold_up_close(tmp_path, run, monkeypatch):
@@ -492,7 +541,7 @@ def test_a_failing_writer_is_reported_not_hidden(tmp_path, run, monkeypatch):
     def broken(*args: object) -> None:
         raise OSError("No space left on device")
 
-    monkeypatch.setattr(FrameLogger, "write_frame", broken)
+    monkeypatch.setattr(FrameLogger, "write_frames", broken)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt)
     sink.log(*frames[0])
     with pytest.raises(RerunOutputError, match="No space left"):
