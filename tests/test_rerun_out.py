@@ -550,6 +550,24 @@ def test_a_failing_writer_is_reported_not_hidden(tmp_path, run, monkeypatch):
         sink.log(*frames[1])
 
 
+def test_a_frame_of_another_size_than_the_calibration_is_an_error(tmp_path, run):
+    calibration, belt, frames = run
+    # The images' format is logged once from the calibration; a frame that does not match it
+    # would be shown wrongly, so the output fails and says why.
+    tracked, status = frames[1]
+    f = tracked.frame
+    half = f.shape[1] // 2
+    narrow = dataclasses.replace(
+        tracked,
+        frame=dataclasses.replace(f, header=dataclasses.replace(f.header, width=half)),
+        labels=tracked.labels[:, :half],
+    )
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt)
+    sink.log(narrow, status)
+    with pytest.raises(RerunOutputError, match=rf"frame 1 is \({half}, 144\) pixels"):
+        sink.close()
+
+
 CTRL_C_SCRIPT = """
 import signal, sys
 sys.path.insert(0, sys.argv[2])
