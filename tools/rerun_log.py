@@ -65,11 +65,10 @@ SERIES = {
 """Time series under `status/`: entity name → what it shows."""
 
 TRAIL_FRAMES = 30
+"""A trail shows where a track's centroid was over this many frames."""
 STATUS_EVERY = 5
 """The pipeline's health is logged every this many frames (10 a second at 50 fps), and at
-once when the rerun output itself drops frames: enough for its plots, and six fewer calls
-into rerun on the other frames."""
-"""A trail shows where a track's centroid was over this many frames."""
+once when the rerun output itself drops frames: enough for its plots."""
 BACKGROUND_STRIDE = 2
 """Background points are thinned to every this-many-th pixel in u and in v."""
 BACKGROUND_MASK = rr.AnnotationInfo(0, "background", (0, 0, 0, 0))
@@ -85,6 +84,17 @@ EYE_POSITION = (0.5, -0.9, -0.3)
 EYE_TARGET = (0.0, 0.1, 1.25)
 """The 3D view's default eye: above and behind the camera, off to one side (camera frame)."""
 
+POINT_POSITIONS = rr.Points3D.descriptor_positions()
+POINT_CLASSES = rr.Points3D.descriptor_class_ids()
+BOX_CENTERS = rr.Boxes3D.descriptor_centers()
+BOX_HALF_SIZES = rr.Boxes3D.descriptor_half_sizes()
+BOX_CLASSES = rr.Boxes3D.descriptor_class_ids()
+BOX_LABELS = rr.Boxes3D.descriptor_labels()
+TRAIL_STRIPS = rr.LineStrips3D.descriptor_strips()
+TRAIL_CLASSES = rr.LineStrips3D.descriptor_class_ids()
+SCALARS = rr.Scalars.descriptor_scalars()
+"""The archetypes' own component descriptors, for rows built straight from arrays."""
+
 
 def track_color(track_id: int) -> tuple[int, int, int]:
     """A bright colour that depends on the id alone (golden-ratio hues), so it never changes."""
@@ -95,17 +105,6 @@ def track_color(track_id: int) -> tuple[int, int, int]:
 
 def track_label(track_id: int) -> str:
     return f"track {track_id}"
-
-
-POINT_POSITIONS = rr.Points3D.descriptor_positions()
-POINT_CLASSES = rr.Points3D.descriptor_class_ids()
-BOX_CENTERS = rr.Boxes3D.descriptor_centers()
-BOX_HALF_SIZES = rr.Boxes3D.descriptor_half_sizes()
-BOX_CLASSES = rr.Boxes3D.descriptor_class_ids()
-BOX_LABELS = rr.Boxes3D.descriptor_labels()
-TRAIL_STRIPS = rr.LineStrips3D.descriptor_strips()
-TRAIL_CLASSES = rr.LineStrips3D.descriptor_class_ids()
-SCALARS = rr.Scalars.descriptor_scalars()
 
 
 def annotation_context(
@@ -306,17 +305,16 @@ class FrameLogger:
                     f"frame {row.tracked.sequence} is {row.tracked.frame.shape[::-1]} pixels; "
                     f"the recording's images are {shape[::-1]} (the calibration's)"
                 )
+        for row in rows:
             self._log_frame_events(row)
         frames = [row.tracked.frame for row in rows]
         times = time_columns(rows)
         send = self.rec.send_columns
         send(DEPTH, times, [self._depth.column(np.stack([depth_mm(f) for f in frames]))])
-        for entity, image, values in (
-            (AMPLITUDE, self._amplitude, [f.amplitude for f in frames]),
-            (INTENSITY, self._intensity, [f.intensity for f in frames]),
-        ):
-            full_scale = IMAGE_FULL_SCALE[entity.rsplit("/", 1)[1]]
-            send(entity, times, [image.column(gray8(values, full_scale))])
+        amplitude = gray8([f.amplitude for f in frames], IMAGE_FULL_SCALE["amplitude"])
+        send(AMPLITUDE, times, [self._amplitude.column(amplitude)])
+        intensity = gray8([f.intensity for f in frames], IMAGE_FULL_SCALE["intensity"])
+        send(INTENSITY, times, [self._intensity.column(intensity)])
         labels = np.array([row.tracked.labels for row in rows], np.uint16)
         send(MASKS, times, [self._masks.column(labels)])
         clouds = [cloud(row.tracked) for row in rows]
@@ -334,7 +332,7 @@ class FrameLogger:
             ],
         )
         self._send_tracks(rows, times)
-        self._send_status(rows, times, sink_dropped)
+        self._send_status(rows, sink_dropped)
 
     def write_event(self, text: str, level: str) -> None:
         """A device or pipeline event, at the time of the last frame written."""
@@ -452,9 +450,7 @@ class FrameLogger:
         )
         self._belt_logged = True
 
-    def _send_status(
-        self, rows: Sequence[FrameRow], times: list[rr.TimeColumn], sink_dropped: int
-    ) -> None:
+    def _send_status(self, rows: Sequence[FrameRow], sink_dropped: int) -> None:
         """The health at every STATUS_EVERY-th frame, and at the first frame that knows of
         new drops by the output itself."""
         picked = [
@@ -465,17 +461,18 @@ class FrameLogger:
         ]
         self._dropped_logged = sink_dropped
         for name in SERIES:
-            values = {row: status_value(row.status, name, sink_dropped) for row in picked}
-            at = [row for row, value in values.items() if value is not None]
+            at: list[FrameRow] = []
+            values: list[float] = []
+            for row in picked:
+                value = status_value(row.status, name, sink_dropped)
+                if value is not None:
+                    at.append(row)
+                    values.append(value)
             if at:
                 self.rec.send_columns(
                     f"{STATUS}/{name}",
                     time_columns(at),
-                    [
-                        rr.DescribedComponentBatch(
-                            ScalarBatch([values[row] for row in at]), SCALARS
-                        ).partition()
-                    ],
+                    [rr.DescribedComponentBatch(ScalarBatch(values), SCALARS).partition()],
                 )
 
 

@@ -276,8 +276,10 @@ class RerunSink:
         event once there are `batch_frames` of them, an event behind them, the first has
         waited `delay_s` or the sink is closing; None when closed and drained."""
         while True:
-            if self._items and isinstance(self._items[0], _Event):
-                return self._items.popleft()
+            head = self._items[0] if self._items else None
+            if isinstance(head, _Event):
+                self._items.popleft()
+                return head
             frames: list[_Frame] = []
             for item in self._items:
                 if not isinstance(item, _Frame):
