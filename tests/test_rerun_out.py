@@ -261,6 +261,12 @@ def test_every_frame_is_on_both_timelines(recording, run):
     device = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="device_time")
     us = dt.timedelta(microseconds=1)
     assert sorted(device) == [t.frame.device_time_us * us for t, _ in frames]
+    # and on log_time, at the time each was handed to the sink, in order
+    logged = all_rows(path, "world/camera/depth", "DepthImage:buffer", timeline="log_time")
+    stamps = [t for t, _ in logged]
+    assert len(stamps) == len(frames)
+    assert None not in stamps
+    assert stamps == sorted(stamps)
 
 
 def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):

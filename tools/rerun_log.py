@@ -52,7 +52,8 @@ SEQUENCE = "sequence"
 DEVICE_TIME = "device_time"
 """Timeline of the device's timestamps (time since the camera powered up)."""
 LOG_TIME = "log_time"
-"""Rerun's own timeline of wall-clock time; a frame's is when it was handed to the output."""
+"""Rerun's own timeline of wall-clock time: a frame's rows are at the time the frame was
+handed to the output, what `rr.log` logs (events, contexts) at the time it is logged."""
 
 SERIES = {
     "fps": "frames per second",
@@ -306,7 +307,7 @@ class FrameLogger:
                     f"the recording's images are {shape[::-1]} (the calibration's)"
                 )
         for row in rows:
-            self._log_frame_events(row)
+            self._log_frame_events(row.tracked)
         frames = [row.tracked.frame for row in rows]
         times = time_columns(rows)
         send = self.rec.send_columns
@@ -357,14 +358,13 @@ class FrameLogger:
             if not keep_serving:
                 self.rec.disconnect()
 
-    def _log_frame_events(self, row: FrameRow) -> None:
+    def _log_frame_events(self, tracked: TrackedFrame) -> None:
         """What happens at one frame rather than in every frame: the annotation contexts when
-        the ids change, births and ends, the belt's arrow; at the frame's times."""
+        the ids change, births and ends, the belt's arrow; at the frame's sequence number and
+        device time (their log time is rerun's own: when they are logged)."""
         rec = self.rec
-        tracked = row.tracked
         rec.set_time(SEQUENCE, sequence=tracked.sequence)
         rec.set_time(DEVICE_TIME, duration=np.timedelta64(tracked.frame.device_time_us, "us"))
-        rec.set_time(LOG_TIME, timestamp=np.datetime64(row.log_time_ns, "ns"))
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
         if ids != self._context_ids:  # ids never repeat; every id in the masks is a track's
             rec.log(WORLD, annotation_context(ids))
