@@ -241,6 +241,7 @@ def test_the_recording_holds_every_entity_and_a_blueprint(recording):
         "/world/camera/intensity",
         "/world/camera/tracks",
         "/world/points",
+        "/world/points/background",
         "/world/tracks",
         "/world/trails",
         "/world/belt",
@@ -323,26 +324,21 @@ def test_points_boxes_and_trails_carry_the_track_ids(recording, run):
     _, _, frames = run
     tracked = frames[12][0]
     f = tracked.frame
+    # Each track's points, with its id as class: `world`'s context gives label and colour.
     classes = np.array(rows_on(path, "world/points", "Points3D:class_ids")[tracked.sequence])
     positions = np.array(rows_on(path, "world/points", "Points3D:positions")[tracked.sequence])
-    assert len(positions) == len(classes)
+    assert len(positions) == len(classes) == sum(len(t.points) for t in tracked.tracks)
     for t in tracked.tracks:
         assert np.array_equal(positions[classes == t.id], t.points)
-    # the background, thinned to every 2nd pixel in u and v, is class 0
+    # The background, thinned to every 2nd pixel in u and v, on its own, in one grey.
+    background = rows_on(path, "world/points/background", "Points3D:positions")
     s = rerun_log.BACKGROUND_STRIDE
     keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
-    assert np.array_equal(positions[classes == 0], f.xyz[::s, ::s][keep].astype(np.float32))
-    assert set(np.unique(classes)) == {0} | {t.id for t in tracked.tracks}
-    # The point cloud's own annotation context: class 0 dim grey, each track its colour.
-    contexts = rows_on(path, "world/points", "AnnotationContext:context")
-    (context,) = contexts[max(t for t in contexts if t <= tracked.sequence)]
-    info = {c["class_id"]: c["class_description"]["info"] for c in context}
+    expected = f.xyz[::s, ::s][keep].astype(np.float32)
+    assert np.array_equal(np.array(background[tracked.sequence], np.float32), expected)
     r, g, b = rerun_log.BACKGROUND_RGB
-    assert info[0]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
-    for t in tracked.tracks:
-        r, g, b = track_color(t.id)
-        assert info[t.id]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
-        assert info[t.id]["label"] == f"track {t.id}"
+    grey = (r << 24) | (g << 16) | (b << 8) | 0xFF
+    assert static_value(path, "world/points/background", "Points3D:colors") == [grey]
     boxes = rows_on(path, "world/tracks", "Boxes3D:class_ids")[tracked.sequence]
     assert sorted(boxes) == sorted(t.id for t in tracked.tracks)
     trails = rows_on(path, "world/trails", "LineStrips3D:strips")[tracked.sequence]

@@ -41,6 +41,7 @@ AMPLITUDE = "world/camera/amplitude"
 INTENSITY = "world/camera/intensity"
 MASKS = "world/camera/tracks"
 POINTS = "world/points"
+BACKGROUND = "world/points/background"
 BOXES = "world/tracks"
 TRAILS = "world/trails"
 BELT = "world/belt"
@@ -72,11 +73,8 @@ STATUS_EVERY = 5
 once when the rerun output itself drops frames: enough for its plots."""
 BACKGROUND_STRIDE = 2
 """Background points are thinned to every this-many-th pixel in u and in v."""
-BACKGROUND_MASK = rr.AnnotationInfo(0, "background", (0, 0, 0, 0))
-"""Class 0 of the masks, boxes and trails: see-through."""
 BACKGROUND_RGB = (96, 96, 96)
-BACKGROUND_POINTS = rr.AnnotationInfo(0, "background", BACKGROUND_RGB)
-"""Class 0 of the point cloud (its own context): the thinned background, dim grey."""
+"""The background's points: dim grey (one colour, logged once)."""
 IMAGE_FULL_SCALE = {"amplitude": 8191.5, "intensity": 16383.0}
 """Counts shown as white: amplitude is at most half, intensity at most all of a 14-bit tap."""
 BELT_ARROW_M = 0.3
@@ -108,12 +106,9 @@ def track_label(track_id: int) -> str:
     return f"track {track_id}"
 
 
-def annotation_context(
-    track_ids: Iterable[int],
-    background: rr.AnnotationInfo = BACKGROUND_MASK,
-) -> rr.AnnotationContext:
-    """Class 0 is the background as given; each track id gets its label and colour."""
-    classes: list[rr.AnnotationInfo] = [background]
+def annotation_context(track_ids: Iterable[int]) -> rr.AnnotationContext:
+    """Class 0 is the see-through background; each track id gets its label and colour."""
+    classes: list[rr.AnnotationInfo] = [rr.AnnotationInfo(0, "background", (0, 0, 0, 0))]
     classes += [
         rr.AnnotationInfo(i, track_label(i), track_color(i)) for i in sorted(set(track_ids))
     ]
@@ -192,20 +187,22 @@ def depth_mm(f: Frame) -> npt.NDArray[np.uint16]:
     return np.clip(np.rint(z * 1000.0), 0, 65535).astype(np.uint16)
 
 
-def cloud(tracked: TrackedFrame) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16]]:
-    """Each track's points with its id as class, then the thinned background as class 0."""
+def cloud(
+    tracked: TrackedFrame,
+) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.uint16], npt.NDArray[np.float32]]:
+    """Each track's points and, for each point, its track's id (its class); and the
+    background's points, thinned."""
     f = tracked.frame
     s = BACKGROUND_STRIDE
     keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
     pixels = thinned_pixels(tracked.labels.shape)[keep]
     background = np.take(f.xyz.reshape(-1, 3), pixels, axis=0).astype(np.float32)
     tracks = [t for t in tracked.tracks if len(t.points)]
-    positions = np.concatenate(
-        [*(t.points.astype(np.float32, copy=False) for t in tracks), background]
-    )
-    ids = np.array([*(t.id for t in tracks), 0], np.uint16)
-    counts = [*(len(t.points) for t in tracks), len(background)]
-    return positions, np.repeat(ids, counts)
+    if not tracks:
+        return np.zeros((0, 3), np.float32), np.zeros(0, np.uint16), background
+    positions = np.concatenate([t.points.astype(np.float32, copy=False) for t in tracks])
+    ids = np.repeat(np.array([t.id for t in tracks], np.uint16), [len(t.points) for t in tracks])
+    return positions, ids, background
 
 
 @functools.cache
@@ -293,6 +290,8 @@ class FrameLogger:
         )
         for name, title in SERIES.items():
             self.rec.log(f"{STATUS}/{name}", rr.SeriesLines(names=title), static=True)
+        # One colour for every background point: rerun applies a single value to them all.
+        self.rec.log(BACKGROUND, rr.Points3D.from_fields(colors=[BACKGROUND_RGB]), static=True)
 
     def write_frames(self, rows: Sequence[FrameRow], sink_dropped: int) -> None:
         """Everything about these frames (in order), each at its sequence number, device time
@@ -319,17 +318,27 @@ class FrameLogger:
         labels = np.array([row.tracked.labels for row in rows], np.uint16)
         send(MASKS, times, [self._masks.column(labels)])
         clouds = [cloud(row.tracked) for row in rows]
-        lengths = [len(positions) for positions, _ in clouds]
+        lengths = [len(positions) for positions, _, _ in clouds]
         send(
             POINTS,
             times,
             [
                 rr.DescribedComponentBatch(
-                    Position3DBatch(np.concatenate([p for p, _ in clouds])), POINT_POSITIONS
+                    Position3DBatch(np.concatenate([p for p, _, _ in clouds])), POINT_POSITIONS
                 ).partition(lengths),
                 rr.DescribedComponentBatch(
-                    ClassIdBatch(np.concatenate([c for _, c in clouds])), POINT_CLASSES
+                    ClassIdBatch(np.concatenate([c for _, c, _ in clouds])), POINT_CLASSES
                 ).partition(lengths),
+            ],
+        )
+        background = [b for _, _, b in clouds]
+        send(
+            BACKGROUND,
+            times,
+            [
+                rr.DescribedComponentBatch(
+                    Position3DBatch(np.concatenate(background)), POINT_POSITIONS
+                ).partition([len(b) for b in background])
             ],
         )
         self._send_tracks(rows, times)
@@ -359,7 +368,7 @@ class FrameLogger:
                 self.rec.disconnect()
 
     def _log_frame_events(self, tracked: TrackedFrame) -> None:
-        """What happens at one frame rather than in every frame: the annotation contexts when
+        """What happens at one frame rather than in every frame: the annotation context when
         the ids change, births and ends, the belt's arrow; at the frame's sequence number and
         device time (their log time is rerun's own: when they are logged)."""
         rec = self.rec
@@ -368,7 +377,6 @@ class FrameLogger:
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
         if ids != self._context_ids:  # ids never repeat; every id in the masks is a track's
             rec.log(WORLD, annotation_context(ids))
-            rec.log(POINTS, annotation_context(ids, BACKGROUND_POINTS))
             self._context_ids = ids
         for i in tracked.born:
             rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} born", level="INFO"))
