@@ -310,14 +310,19 @@ class FrameLogger:
         frames = [row.tracked.frame for row in rows]
         times = time_columns(rows)
         send = self.rec.send_columns
-        send(DEPTH, times, [self._depth.column(np.stack([depth_mm(f) for f in frames]))])
+        # Each frame's depth and cloud one after the other: its points are read from memory once.
+        depths = []
+        clouds = []
+        for row in rows:
+            depths.append(depth_mm(row.tracked.frame))
+            clouds.append(cloud(row.tracked))
+        send(DEPTH, times, [self._depth.column(np.stack(depths))])
         amplitude = gray8([f.amplitude for f in frames], IMAGE_FULL_SCALE["amplitude"])
         send(AMPLITUDE, times, [self._amplitude.column(amplitude)])
         intensity = gray8([f.intensity for f in frames], IMAGE_FULL_SCALE["intensity"])
         send(INTENSITY, times, [self._intensity.column(intensity)])
         labels = np.array([row.tracked.labels for row in rows], np.uint16)
         send(MASKS, times, [self._masks.column(labels)])
-        clouds = [cloud(row.tracked) for row in rows]
         lengths = [len(positions) for positions, _, _ in clouds]
         send(
             POINTS,
