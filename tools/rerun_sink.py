@@ -51,7 +51,7 @@ would pile frames up in memory (about 190 KB each) instead of waiting in `log()`
 LIVE_BATCH_FRAMES = 5
 LIVE_DELAY_S = 0.1
 """A live viewer gets frames 5 at a time (0.1 s at 50 fps), at most 0.1 s after they were
-queued: rerun's own batcher holds data up to 0.2 s by default anyway."""
+queued (by default rerun's own batcher holds `rr.log` rows up to 0.2 s)."""
 FILE_DELAY_S = 1.0
 """A file's frames are written at most this long after they were queued."""
 LIVE_CLOSE_TIMEOUT_S = 5.0
