@@ -305,17 +305,21 @@ def test_images_come_back_as_logged(recording, run):
         (buffer,) = rows_on(path, entity, f"{archetype}:buffer")[tracked.sequence]
         return np.array(buffer, np.uint8).view(dtype).reshape(h, w)
 
-    # Depth: z in millimetres (meter 1000), to within rounding; 0 where invalid.
+    # Depth: z in millimetres (meter 1000), to within rounding; 0 ("no depth") where invalid,
+    # and where noise at the near end of the range put a valid point behind the camera.
     depth = image("world/camera/depth", "DepthImage", np.uint16)
     assert static_value(path, "world/camera/depth", "DepthImage:meter") == [1000.0]
-    assert np.all(depth[~f.valid] == 0)
-    assert np.abs(depth[f.valid] / 1000.0 - f.xyz[..., 2][f.valid]).max() <= 0.0005 + 1e-9
+    z = f.xyz[..., 2]
+    shown = f.valid & (z >= 0.0)
+    assert shown.sum() > 0.9 * f.valid.size
+    assert np.all(depth[~shown] == 0)
+    assert np.abs(depth[shown] / 1000.0 - z[shown]).max() <= 0.0005 + 1e-9
     # Amplitude and intensity: 8-bit grey on their fixed square-root scales.
     for entity, counts in (("amplitude", f.amplitude), ("intensity", f.intensity)):
         grey = image(f"world/camera/{entity}", "Image", np.uint8)
         full = rerun_log.IMAGE_FULL_SCALE[entity]
         expected = 255.0 * np.sqrt(np.clip(counts / full, 0.0, 1.0))
-        assert np.abs(grey - expected).max() <= 1.0
+        assert np.abs(grey - expected).max() < 1.001  # truncated, in float32
         assert grey.max() > 0
 
 
