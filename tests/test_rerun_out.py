@@ -13,6 +13,7 @@ import sys
 import threading
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -192,6 +193,18 @@ def all_rows(
     return out
 
 
+def static_value(path: Path, entity: str, component: str) -> object:
+    """The static value of one component of one entity (the last one logged)."""
+    values = []
+    for ch in chunks(path):
+        if ch.entity_path == f"/{entity}" and ch.is_static:
+            batch = ch.to_record_batch()
+            names = [n for n in batch.schema.names if n.endswith(component)]
+            values += [v for name in names for v in batch.column(name).to_pylist() if v is not None]
+    assert values, f"no static {component} on {entity}"
+    return values[-1]
+
+
 def rows_on(path: Path, entity: str, component: str, timeline: str = "sequence") -> dict:
     """{time: value} of one component of one entity, on one timeline."""
     return dict(all_rows(path, entity, component, timeline))
@@ -228,6 +241,7 @@ def test_the_recording_holds_every_entity_and_a_blueprint(recording):
         "/world/camera/intensity",
         "/world/camera/tracks",
         "/world/points",
+        "/world/points/background",
         "/world/tracks",
         "/world/trails",
         "/world/belt",
@@ -248,6 +262,12 @@ def test_every_frame_is_on_both_timelines(recording, run):
     device = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="device_time")
     us = dt.timedelta(microseconds=1)
     assert sorted(device) == [t.frame.device_time_us * us for t, _ in frames]
+    # and on log_time, at the time each was handed to the sink, in order
+    logged = all_rows(path, "world/camera/depth", "DepthImage:buffer", timeline="log_time")
+    stamps = [t for t, _ in logged]
+    assert len(stamps) == len(frames)
+    assert None not in stamps
+    assert stamps == sorted(stamps)
 
 
 def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
@@ -271,15 +291,58 @@ def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
         assert classes[i]["color"] == (r << 24) | (g << 16) | (b << 8) | 0xFF
 
 
-def test_points_boxes_and_trails_carry_the_track_colours(recording, run):
+def test_images_come_back_as_logged(recording, run):
     path, _ = recording
     _, _, frames = run
     tracked = frames[12][0]
-    colours = np.array(rows_on(path, "world/points", "Points3D:colors")[tracked.sequence])
+    f = tracked.frame
+    h, w = f.shape
+
+    def image(entity: str, archetype: str, dtype: type) -> np.ndarray:
+        # the format is logged once, static; each frame holds only its pixels
+        (fmt,) = static_value(path, entity, f"{archetype}:format")
+        assert (fmt["width"], fmt["height"]) == (w, h)
+        (buffer,) = rows_on(path, entity, f"{archetype}:buffer")[tracked.sequence]
+        return np.array(buffer, np.uint8).view(dtype).reshape(h, w)
+
+    # Depth: z in millimetres (meter 1000), to within rounding; 0 ("no depth") where invalid,
+    # and where noise at the near end of the range put a valid point behind the camera.
+    depth = image("world/camera/depth", "DepthImage", np.uint16)
+    assert static_value(path, "world/camera/depth", "DepthImage:meter") == [1000.0]
+    z = f.xyz[..., 2]
+    shown = f.valid & (z >= 0.0)
+    assert shown.sum() > 0.9 * f.valid.size
+    assert np.all(depth[~shown] == 0)
+    assert np.abs(depth[shown] / 1000.0 - z[shown]).max() <= 0.0005 + 1e-9
+    # Amplitude and intensity: 8-bit grey on their fixed square-root scales.
+    for entity, counts in (("amplitude", f.amplitude), ("intensity", f.intensity)):
+        grey = image(f"world/camera/{entity}", "Image", np.uint8)
+        full = rerun_log.IMAGE_FULL_SCALE[entity]
+        expected = 255.0 * np.sqrt(np.clip(counts / full, 0.0, 1.0))
+        assert np.abs(grey - expected).max() < 1.001  # truncated, in float32
+        assert grey.max() > 0
+
+
+def test_points_boxes_and_trails_carry_the_track_ids(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    tracked = frames[12][0]
+    f = tracked.frame
+    # Each track's points, with its id as class: `world`'s context gives label and colour.
+    classes = np.array(rows_on(path, "world/points", "Points3D:class_ids")[tracked.sequence])
+    positions = np.array(rows_on(path, "world/points", "Points3D:positions")[tracked.sequence])
+    assert len(positions) == len(classes) == sum(len(t.points) for t in tracked.tracks)
     for t in tracked.tracks:
-        r, g, b = track_color(t.id)
-        rgba = (r << 24) | (g << 16) | (b << 8) | 0xFF
-        assert np.count_nonzero(colours == rgba) == len(t.points)
+        assert np.array_equal(positions[classes == t.id], t.points)
+    # The background, thinned to every 2nd pixel in u and v, on its own, in one grey.
+    background = rows_on(path, "world/points/background", "Points3D:positions")
+    s = rerun_log.BACKGROUND_STRIDE
+    keep = f.valid[::s, ::s] & (tracked.labels[::s, ::s] == 0)
+    expected = f.xyz[::s, ::s][keep].astype(np.float32)
+    assert np.array_equal(np.array(background[tracked.sequence], np.float32), expected)
+    r, g, b = rerun_log.BACKGROUND_RGB
+    grey = (r << 24) | (g << 16) | (b << 8) | 0xFF
+    assert static_value(path, "world/points/background", "Points3D:colors") == [grey]
     boxes = rows_on(path, "world/tracks", "Boxes3D:class_ids")[tracked.sequence]
     assert sorted(boxes) == sorted(t.id for t in tracked.tracks)
     trails = rows_on(path, "world/trails", "LineStrips3D:strips")[tracked.sequence]
@@ -327,20 +390,20 @@ def test_health_and_events_are_logged(recording, run):
 
 
 class Stall:
-    """Blocks the sink's writer on its first frame until released."""
+    """Blocks the sink's writer on its first batch of frames until released."""
 
     def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
         self.entered = threading.Event()
         self.release = threading.Event()
-        original = FrameLogger.write_frame
+        original = FrameLogger.write_frames
 
-        def write_frame(logger: FrameLogger, *args: object) -> None:
+        def write_frames(logger: FrameLogger, *args: Any) -> None:
             if not self.entered.is_set():
                 self.entered.set()
                 assert self.release.wait(60), "the test never released the writer"
             original(logger, *args)
 
-        monkeypatch.setattr(FrameLogger, "write_frame", write_frame)
+        monkeypatch.setattr(FrameLogger, "write_frames", write_frames)
 
 
 def frame_sequences(path: Path) -> list[int]:
@@ -420,13 +483,48 @@ def test_a_file_waits_for_rerun_to_write_every_few_frames(tmp_path, run, monkeyp
     synced_after: list[int] = []
     monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 5)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=lossless)
-    monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written + 1))
+    monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written))
     for f in frames[:12]:
         sink.log(*f)
     sink.close()
     # rerun's own queue to a file is unbounded: a file's worker lets it drain every 5 frames;
     # a live viewer's pushes back by itself.
     assert synced_after == ([5, 10] if lossless else [])
+
+
+def test_frames_are_written_in_batches_and_a_lone_frame_is_not_held_back(
+    tmp_path, run, monkeypatch
+):
+    calibration, belt, frames = run
+    batches: list[list[int]] = []
+    written = threading.Event()
+    original = FrameLogger.write_frames
+
+    def write_frames(logger: FrameLogger, rows: Any, dropped: int) -> None:
+        batches.append([row.tracked.sequence for row in rows])
+        original(logger, rows, dropped)
+        written.set()
+
+    monkeypatch.setattr(FrameLogger, "write_frames", write_frames)
+    # A file: SYNC_FRAMES at a time (the delay is made long, so only the batch size counts);
+    # what is left goes when the sink closes.
+    monkeypatch.setattr("tofcut.tools.rerun_sink.FILE_DELAY_S", 600.0)
+    path = tmp_path / "file.rrd"
+    sink = RerunSink(calibration, RerunTarget.save(path), belt)
+    for tracked, status in frames[:20]:
+        sink.log(tracked, status)
+    sink.close()
+    assert [len(b) for b in batches] == [16, 4]
+    assert [i for b in batches for i in b] == [t.sequence for t, _ in frames[:20]]
+    assert frame_sequences(path) == [t.sequence for t, _ in frames[:20]]
+    # A live viewer: one frame alone is written once it has waited LIVE_DELAY_S, not later.
+    batches.clear()
+    written.clear()
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "live.rrd"), belt, lossless=False)
+    sink.log(*frames[0])
+    assert written.wait(60)
+    assert batches == [[frames[0][0].sequence]]
+    sink.close()
 
 
 def test_a_live_viewer_that_never_recovers_cannot_hold_up_close(tmp_path, run, monkeypatch):
@@ -449,13 +547,31 @@ def test_a_failing_writer_is_reported_not_hidden(tmp_path, run, monkeypatch):
     def broken(*args: object) -> None:
         raise OSError("No space left on device")
 
-    monkeypatch.setattr(FrameLogger, "write_frame", broken)
+    monkeypatch.setattr(FrameLogger, "write_frames", broken)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt)
     sink.log(*frames[0])
     with pytest.raises(RerunOutputError, match="No space left"):
         sink.close()
     with pytest.raises(RerunOutputError, match="No space left"):
         sink.log(*frames[1])
+
+
+def test_a_frame_of_another_size_than_the_calibration_is_an_error(tmp_path, run):
+    calibration, belt, frames = run
+    # The images' format is logged once from the calibration; a frame that does not match it
+    # would be shown wrongly, so the output fails and says why.
+    tracked, status = frames[1]
+    f = tracked.frame
+    half = f.shape[1] // 2
+    narrow = dataclasses.replace(
+        tracked,
+        frame=dataclasses.replace(f, header=dataclasses.replace(f.header, width=half)),
+        labels=tracked.labels[:, :half],
+    )
+    sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt)
+    sink.log(narrow, status)
+    with pytest.raises(RerunOutputError, match=rf"frame 1 is \({half}, 144\) pixels"):
+        sink.close()
 
 
 CTRL_C_SCRIPT = """

@@ -1,5 +1,11 @@
 """Rerun output off the hot path: `log()` queues a frame, a worker thread does the logging.
 
+The worker writes frames in batches, one rerun call per entity for the lot (rerun's cost per
+call, and waking its threads, is most of what logging a frame costs next to a tracker on
+the same core): a file's every `SYNC_FRAMES` frames, a live viewer's every
+`LIVE_BATCH_FRAMES`, and sooner when the oldest queued frame has waited `FILE_DELAY_S` or
+`LIVE_DELAY_S` (a stalled camera never holds frames back longer).
+
 Live viewers (spawn, connect, serve, stdout) get a short queue: when the viewer falls
 behind, rerun's own send queue pushes back on the worker, our queue fills, and the oldest
 queued frame is dropped and counted, so the camera and tracker never wait. A file gets a
@@ -29,7 +35,7 @@ import rerun as rr
 
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.errors import TofcutError
-from tofcut.tools.rerun_log import APP_ID, FrameLogger, default_blueprint
+from tofcut.tools.rerun_log import APP_ID, FrameLogger, FrameRow, default_blueprint
 from tofcut.tools.rerun_target import RerunTarget, target_from_args
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
@@ -42,6 +48,12 @@ SYNC_FRAMES = 16
 """A file's worker waits for rerun to write what it was given every this many frames: rerun's
 own queues to a file are unbounded, so a worker faster than rerun's encoder and the disk
 would pile frames up in memory (about 190 KB each) instead of waiting in `log()`."""
+LIVE_BATCH_FRAMES = 5
+LIVE_DELAY_S = 0.1
+"""A live viewer gets frames 5 at a time (0.1 s at 50 fps), at most 0.1 s after they were
+queued (by default rerun's own batcher holds `rr.log` rows up to 0.2 s)."""
+FILE_DELAY_S = 1.0
+"""A file's frames are written at most this long after they were queued."""
 LIVE_CLOSE_TIMEOUT_S = 5.0
 """How long `close()` gives a live viewer to take what is queued before abandoning it."""
 
@@ -71,8 +83,9 @@ class SinkStats:
 
 @dataclass(frozen=True, eq=False)
 class _Frame:
-    tracked: TrackedFrame
-    status: PipelineStatus
+    row: FrameRow
+    queued_s: float
+    """`time.monotonic()` when queued."""
 
 
 @dataclass(frozen=True)
@@ -102,6 +115,8 @@ class RerunSink:
         self.capacity = queue_frames or (FILE_QUEUE_FRAMES if self.lossless else LIVE_QUEUE_FRAMES)
         if self.capacity < 1:
             raise ValueError("the rerun queue must hold at least one frame")
+        self.batch_frames = min(SYNC_FRAMES if self.lossless else LIVE_BATCH_FRAMES, self.capacity)
+        self.delay_s = FILE_DELAY_S if self.lossless else LIVE_DELAY_S
         rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
         try:
             target.attach(rec, default_blueprint())
@@ -154,10 +169,13 @@ class RerunSink:
                     self._wait_for_room()
                 else:
                     self._drop_oldest_frame()
-            self._items.append(_Frame(tracked, status))
+            row = FrameRow(tracked, status, time.time_ns())
+            self._items.append(_Frame(row, time.monotonic()))
             self._queued_frames += 1
             self._logged += 1
-            self._cond.notify_all()
+            # The worker needs waking for a first frame (to time its delay) or a full batch.
+            if self._queued_frames == 1 or self._queued_frames >= self.batch_frames:
+                self._cond.notify_all()
 
     def event(self, text: str, level: str = "INFO") -> None:
         """Queue a text line (device stall, disconnect, reconnect; rejects); never dropped."""
@@ -224,23 +242,17 @@ class RerunSink:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._items and not self._closing:
-                    self._cond.wait()
-                if not self._items:
+                batch = self._next_batch()
+                if batch is None:
                     return
-                item = self._items.popleft()
-                if isinstance(item, _Frame):
-                    self._queued_frames -= 1
                 dropped = self._dropped
                 self._cond.notify_all()
             start = time.thread_time()
             try:
-                if isinstance(item, _Frame):
-                    self._writer.write_frame(item.tracked, item.status, dropped)
-                    if self.lossless and (self._written + 1) % SYNC_FRAMES == 0:
-                        self._writer.sync()
+                if isinstance(batch, _Event):
+                    self._writer.write_event(batch.text, batch.level)
                 else:
-                    self._writer.write_event(item.text, item.level)
+                    self._write_frames(batch, dropped)
             except Exception as exc:
                 with self._cond:
                     self._error = exc
@@ -248,7 +260,48 @@ class RerunSink:
                 return
             with self._cond:
                 self._writer_cpu_s += time.thread_time() - start
-                self._written += isinstance(item, _Frame)
+
+    def _write_frames(self, batch: list[_Frame], dropped: int) -> None:
+        """Write a batch; a file's worker then waits for rerun each time `SYNC_FRAMES` more
+        frames have been written."""
+        self._writer.write_frames([f.row for f in batch], dropped)
+        with self._cond:
+            before = self._written
+            self._written += len(batch)
+        if self.lossless and self._written // SYNC_FRAMES > before // SYNC_FRAMES:
+            self._writer.sync()
+
+    def _next_batch(self) -> list[_Frame] | _Event | None:
+        """Under the lock: the event at the head of the queue, or the frames before the next
+        event once there are `batch_frames` of them, an event behind them, the first has
+        waited `delay_s` or the sink is closing; None when closed and drained."""
+        while True:
+            head = self._items[0] if self._items else None
+            if isinstance(head, _Event):
+                self._items.popleft()
+                return head
+            frames: list[_Frame] = []
+            for item in self._items:
+                if not isinstance(item, _Frame):
+                    break
+                frames.append(item)
+            if not frames and self._closing:
+                return None
+            wait: float | None = None
+            if frames:
+                wait = frames[0].queued_s + self.delay_s - time.monotonic()
+                if (
+                    len(frames) >= self.batch_frames
+                    or len(frames) < len(self._items)
+                    or wait <= 0
+                    or self._closing
+                ):
+                    batch = frames[: self.batch_frames]
+                    for _ in batch:
+                        self._items.popleft()
+                    self._queued_frames -= len(batch)
+                    return batch
+            self._cond.wait(wait)
 
     # --- the end ----------------------------------------------------------------------------
 
