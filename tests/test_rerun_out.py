@@ -734,3 +734,21 @@ def test_a_frame_without_tracks_clears_the_boxes_and_trails(tmp_path, run):
     assert trails[3] == []
     mask = rows_on(path, "world/camera/tracks", "SegmentationImage:buffer")[3]
     assert not np.any(np.array(mask, np.uint8))
+
+
+def test_a_recording_on_stdout_carries_nothing_else(tmp_path):
+    # `--stdout` pipes the recording to another program: the run's closing lines go to
+    # stderr, or they would trail the recording's bytes
+    path = tmp_path / "piped.rrd"
+    code = "import sys; from tofcut.tools.cli import main; sys.exit(main(sys.argv[1:]))"
+    with path.open("wb") as out:
+        result = subprocess.run(
+            [sys.executable, "-c", code, "track", "emulator:conveyor", "--fast", "--frames",
+             "12", "--stdout"],
+            stdout=out, stderr=subprocess.PIPE, text=True, timeout=300,
+        )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "tracked 12 frames" in result.stderr
+    checked = rrd_verify(path)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    assert len(frame_sequences(path)) == 12

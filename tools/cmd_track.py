@@ -7,6 +7,7 @@ progress bar; live ones a one-line status (fps, tracks, losses).
 from __future__ import annotations
 
 import argparse
+import functools
 import sys
 import time
 from pathlib import Path
@@ -188,22 +189,24 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         if line is not None:
             line.close()
     fps = summary.frames / summary.elapsed_s if summary.elapsed_s > 0 else 0.0
-    print(
+    # with the recording on stdout (`--stdout`), what is said to the user goes to stderr
+    say = functools.partial(print, file=sys.stderr if args.stdout else sys.stdout)
+    say(
         f"tracked {summary.frames} frames in {summary.elapsed_s:.1f} s ({fps:.1f} fps): "
         f"{summary.tracks_started} tracks; latency p50 {summary.percentile_ms(50):.1f} ms, "
         f"p95 {summary.percentile_ms(95):.1f} ms, p99 {summary.percentile_ms(99):.1f} ms"
     )
     for text in describe_losses(device.stats):
-        print(text)
-    print(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
-    print(sink.summary())
+        say(text)
+    say(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
+    say(sink.summary())
     if line is not None:
-        print(line.summary())
+        say(line.summary())
     wait_while_serving(args)
     for name in ("tracks_out", "masks_out"):
         path = getattr(args, name)
         if path:
-            print(f"wrote {path}")
+            say(f"wrote {path}")
     return 0
 
 
@@ -255,7 +258,10 @@ def _run(
     asked = config_from_args(args, device.config)
     if asked is not None:
         device.configure(asked)
-    print(f"camera {device.serial} ({args.source}): {device.config.describe()}")
+    print(
+        f"camera {device.serial} ({args.source}): {device.config.describe()}",
+        file=sys.stderr if args.stdout else sys.stdout,
+    )
     outputs.append(StatusLine(Progress(None, "live")))
     feed = LiveFeed(device).start()
     try:
