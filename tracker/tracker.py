@@ -503,7 +503,7 @@ class Tracker:
         out: tuple[F64, F64] = kernels.track_distances(
             points, ceiling + CEILING_MARGIN,
             np.array([t.filter.position for t in tracks]).reshape(-1, 3),
-            np.array([np.linalg.inv(t.shape) for t in tracks]).reshape(-1, 3, 3),
+            np.linalg.inv(np.array([t.shape for t in tracks]).reshape(-1, 3, 3)),
             clouds, starts, axes, p.object_cost, p.beta, p.surface_weight, spread,
             spread.max(initial=0.0) * self._reach_per_sigma,
         )  # fmt: skip
@@ -513,11 +513,14 @@ class Tracker:
         """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
         one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
         axis each is sorted along (kept per track while its cloud stays the same)."""
-        for t in tracks:
-            kept = self._sorted.get(t.id)
-            if kept is None or kept[0] is not t.cloud:
-                cloud, axis = kernels.sort_surfaces(t.cloud, np.array([0, len(t.cloud)]))
-                self._sorted[t.id] = (t.cloud, cloud, int(axis[0]))
+        stale = [
+            t for t in tracks if (kept := self._sorted.get(t.id)) is None or kept[0] is not t.cloud
+        ]
+        if stale:  # sorted all in one call
+            bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
+            cloud, axis = kernels.sort_surfaces(np.concatenate([t.cloud for t in stale]), bounds)
+            for k, t in enumerate(stale):
+                self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
         starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
         if not tracks:
             return _NO_POINTS, starts, np.zeros(0, np.int64)
