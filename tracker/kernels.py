@@ -372,14 +372,87 @@ def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def any_by_part(win: B, part_of: I64, count: int) -> B:
-    """(rows, parts): whether any node of each part is True in each row of `win`."""
-    out = np.zeros((win.shape[0], count), np.bool_)
-    for v in range(win.shape[1]):
-        for r in range(win.shape[0]):
-            if win[r, v]:
-                out[r, part_of[v]] = True
-    return out
+def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
+    """`np.argsort(keys, kind="stable")` of keys in [0, count), and where each key's run
+    starts in it (`np.searchsorted(sorted keys, np.arange(count + 1))`): a counting sort."""
+    bounds = np.zeros(count + 1, np.int64)
+    for k in keys:
+        bounds[k + 1] += 1
+    for k in range(count):
+        bounds[k + 1] += bounds[k]
+    fill = bounds[:-1].copy()
+    order = np.empty(keys.size, np.int64)
+    for n in range(keys.size):
+        order[fill[keys[n]]] = n
+        fill[keys[n]] += 1
+    return order, bounds
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def split_parts(unary: F64, i: I64, j: I64, ties: F64) -> tuple[I64, I64, I64, I64, I64, I64, B]:
+    """The parts of a Potts problem (nodes joined by edges i, j; see `parts`) and who may
+    win them: each node's part, the nodes and the edges grouped by part (order, bounds, as
+    `_grouped`), each node's cheapest label (`np.argmin(unary, axis=0)`), and (labels,
+    parts) whether a label may win some node of the part: its cost within the node's
+    `ties` of the cheapest (the background always may)."""
+    n_labels, n = unary.shape
+    count, part_of = parts(n, i, j)
+    order, bounds = _grouped(part_of, count)
+    edge_order, edge_bounds = _grouped(part_of[i], count)
+    chosen = np.empty(n, np.int64)
+    can_win = np.zeros((n_labels, count), np.bool_)
+    can_win[0] = True
+    for v in range(n):
+        best, at = unary[0, v], 0
+        if not np.isnan(best):  # numpy's argmin and min: the first nan, if any
+            for r in range(1, n_labels):
+                x = unary[r, v]
+                if np.isnan(x):
+                    best, at = x, r
+                    break
+                if x < best:
+                    best, at = x, r
+        chosen[v] = at
+        limit = best + ties[v]
+        for r in range(1, n_labels):
+            if unary[r, v] <= limit:
+                can_win[r, part_of[v]] = True
+    return part_of, order, bounds, edge_order, edge_bounds, chosen, can_win
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def binary_parts(
+    unary: F64, i: I64, j: I64, w: F64, part_of: I64, order: I64, edge_order: I64,
+    binary: B, track: I64,
+) -> tuple[I64, I64, F64, I64, I64, F64]:  # fmt: skip
+    """The nodes of the `binary` parts (in `order`), the one track that meets the background
+    in each (`track`, by part), their costs for the background and that track (2, nodes),
+    and the edges between them (in `edge_order`; i, j numbered among those nodes, w)."""
+    local = np.full(part_of.size, -1, np.int64)
+    m = 0
+    for v in order:
+        if binary[part_of[v]]:
+            local[v] = m
+            m += 1
+    nodes = np.empty(m, np.int64)
+    label = np.empty(m, np.int64)
+    pair = np.empty((2, m))
+    for v in order:
+        if local[v] >= 0:
+            a = local[v]
+            nodes[a] = v
+            label[a] = track[part_of[v]]
+            pair[0, a] = unary[0, v]
+            pair[1, a] = unary[label[a], v]
+    ei = np.empty(i.size, np.int64)
+    ej = np.empty(i.size, np.int64)
+    ew = np.empty(i.size)
+    k = 0
+    for e in edge_order:
+        if binary[part_of[i[e]]]:
+            ei[k], ej[k], ew[k] = local[i[e]], local[j[e]], w[e]
+            k += 1
+    return nodes, label, pair, ei[:k], ej[:k], ew[:k]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -603,8 +676,8 @@ def warm_up() -> None:
         np.ones(1), 1.0,
     )  # fmt: skip
     cut_at_steps(yes, xyz, f64, 1.0, f64)
-    parts(1, one, one)
-    any_by_part(yes, np.zeros(2, np.int64), 1)
+    part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))
+    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], one)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))

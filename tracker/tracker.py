@@ -819,19 +819,13 @@ def _solve_by_parts(
     labels and nodes of the parts with more than two labels, before they are cut (their
     costs may be inf where the label cannot win)."""
     n = unary.shape[1]
-    count, part_of = kernels.parts(n, i, j)
-    order = np.argsort(part_of, kind="stable")
-    bounds = np.searchsorted(part_of[order], np.arange(count + 1))
-    edge_part = part_of[i]
-    edge_order = np.argsort(edge_part, kind="stable")
-    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(count + 1))
+    # chosen: each node's cheapest label, right for every node without edges
+    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win = kernels.split_parts(
+        unary, i, j, ties
+    )
     local = np.empty(n, np.int64)
-    chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
-    cheapest = unary.min(axis=0)
-    can_win = kernels.any_by_part(unary <= cheapest + ties, part_of, count)
-    can_win[0] = True
-    joined = np.zeros(count, bool)
-    joined[edge_part] = True
+    joined = np.zeros(can_win.shape[1], bool)
+    joined[part_of[i]] = True
     contenders = can_win.sum(axis=0)
     multi = [
         (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
@@ -849,13 +843,10 @@ def _solve_by_parts(
         problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
         chosen[part] = labels[solve_potts(problem)]
     binary = joined & (contenders == 2)
-    nodes = order[binary[part_of[order]]]
-    if nodes.size:
+    if binary.any():
         # every part where one track meets the background: one exact cut for them all
-        track = (np.argmax(can_win[1:], axis=0) + 1)[part_of[nodes]]
-        edges = edge_order[binary[edge_part[edge_order]]]
-        local[nodes] = np.arange(nodes.size)
-        pair = np.stack([unary[0, nodes], unary[track, nodes]])
-        problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
-        chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
+        nodes, track, pair, bi, bj, bw = kernels.binary_parts(
+            unary, i, j, w, part_of, order, edge_order, binary, np.argmax(can_win[1:], axis=0) + 1
+        )
+        chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)
     return chosen
