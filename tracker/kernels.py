@@ -568,6 +568,52 @@ def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def moving_graph(move: B, i: I64, j: I64, w: F64) -> tuple[I64, I64, I64, I64, F64]:
+    """The nodes that `move` (in order), each node's number among them (−1 for the others)
+    and the edges (i, j, w) with an end among them, in order."""
+    local = np.full(move.size, -1, np.int64)
+    m = 0
+    for p in range(move.size):
+        if move[p]:
+            local[p] = m
+            m += 1
+    nodes = np.empty(m, np.int64)
+    for p in range(move.size):
+        if move[p]:
+            nodes[local[p]] = p
+    ri = np.empty(i.size, np.int64)
+    rj = np.empty(i.size, np.int64)
+    rw = np.empty(i.size)
+    k = 0
+    for e in range(i.size):
+        if move[i[e]] or move[j[e]]:
+            ri[k], rj[k], rw[k] = i[e], j[e], w[e]
+            k += 1
+    return nodes, local, ri[:k], rj[:k], rw[:k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def cheapest_where(unary: F64, where: B) -> I64:
+    """`np.argmin(unary[:, where], axis=0)` (the first nan, if any) at the nodes `where`,
+    0 elsewhere."""
+    out = np.zeros(unary.shape[1], np.int64)
+    for p in range(unary.shape[1]):
+        if not where[p]:
+            continue
+        best, at = unary[0, p], 0
+        if not np.isnan(best):
+            for label in range(1, unary.shape[0]):
+                x = unary[label, p]
+                if np.isnan(x):
+                    at = label
+                    break
+                if x < best:
+                    best, at = x, label
+        out[p] = at
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def expansion_terms(
     unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64, nodes: I64
 ) -> tuple[F64, F64, I64, I64, F64]:
@@ -676,11 +722,13 @@ def warm_up() -> None:
         np.ones(1), 1.0,
     )  # fmt: skip
     cut_at_steps(yes, xyz, f64, 1.0, f64)
+    moving_graph(np.ones(1, bool), one, one, np.zeros(1))
     part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))
     binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], one)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))
+        cheapest_where(layout, np.ones(3, bool))
         expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
