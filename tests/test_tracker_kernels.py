@@ -168,3 +168,22 @@ def test_the_filter_update_takes_exactly_what_the_matrix_form_multiplies_out():
                 x, p = x + k @ (value - h @ x), (np.eye(6) - k @ h) @ p
         np.testing.assert_array_equal(fast.x, x)
         np.testing.assert_array_equal(fast.P, p)
+
+
+def test_the_compiled_range_noise_is_the_numpy_one():
+    import dataclasses
+
+    from tofcut.tracker import noise, reference
+
+    for name in ("conveyor", "person"):
+        src = open_scene(name, 0)
+        frame, _ = decode(src, scene_exposure(src, 0.0, 0))
+        # and where the taps say nothing: a negative intensity, a zero amplitude, nan
+        intensity, amplitude = frame.intensity.copy(), frame.amplitude.copy()
+        intensity[3, :40], amplitude[5, 10:30], intensity[9, 50] = -1.0, 0.0, np.nan
+        odd = dataclasses.replace(frame, intensity=intensity, amplitude=amplitude)
+        blind = dataclasses.replace(frame, valid=np.zeros_like(frame.valid))
+        for f in (frame, odd, blind):
+            np.testing.assert_array_equal(
+                noise.range_noise(f, 0.004), reference.range_noise(f, 0.004)
+            )

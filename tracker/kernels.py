@@ -700,6 +700,45 @@ def standing_out(
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noise_fit(intensity: F64, amplitude: F64, valid: B, rng: F64, stride: int) -> tuple[F64, F64]:
+    """`tofcut.tracker.noise.range_noise`'s per-pixel shape of the noise, √max(B, 0) / A
+    (inf where invalid or not finite), and its fit's ratios: along every stride-th row,
+    each second difference of the range over its spread from the shape, where that spread
+    is finite and positive (in row-major order)."""
+    h, w = valid.shape
+    shape = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            b = intensity[v, u]
+            b = b if (b >= 0.0 or b != b) else 0.0
+            x = math.sqrt(b) / amplitude[v, u]
+            shape[v, u] = x if valid[v, u] and np.isfinite(x) else np.inf
+    ratios = np.empty(((h + stride - 1) // stride) * max(w - 2, 0))
+    n = 0
+    for v in range(0, h, stride):
+        for u in range(w - 2):
+            s0, s1, s2 = shape[v, u], shape[v, u + 1], shape[v, u + 2]
+            spread = math.sqrt(s0**2 + 4.0 * s1**2 + s2**2)
+            if np.isfinite(spread) and spread > 0:
+                second = rng[v, u] - 2.0 * rng[v, u + 1] + rng[v, u + 2]
+                ratios[n] = abs(second) / spread
+                n += 1
+    return shape, ratios[:n]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noise_scaled(shape: F64, scale: float, floor: float) -> F64:
+    """`np.maximum(scale * shape, floor)`."""
+    h, w = shape.shape
+    out = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            x = scale * shape[v, u]
+            out[v, u] = x if (x >= floor or x != x) else floor
+    return out
+
+
 def warm_up() -> None:
     """Load (or compile) every kernel for the argument types the tracker calls it with, so
     the first frames of a live run do not stall on it (about a second, once per process)."""
@@ -724,13 +763,15 @@ def warm_up() -> None:
     cut_at_steps(yes, xyz, f64, 1.0, f64)
     moving_graph(np.ones(1, bool), one, one, np.zeros(1))
     part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))
-    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], one)
+    track = np.ones(can_win.shape[1], np.int64)
+    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], track)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))
         cheapest_where(layout, np.ones(3, bool))
         expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
+    noise_scaled(noise_fit(f64, f64, yes, f64, 1)[0], 1.0, 1.0)
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, yes, f64, 1.0, 1.0, 1.0, 1, 1.0, 1.0)
