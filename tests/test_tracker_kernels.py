@@ -187,3 +187,18 @@ def test_the_compiled_range_noise_is_the_numpy_one():
             np.testing.assert_array_equal(
                 noise.range_noise(f, 0.004), reference.range_noise(f, 0.004)
             )
+
+
+def test_pieces_are_numbered_as_scipy_labels_them():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        h, w = rng.integers(1, 40, 2)
+        body = rng.random((h, w)) < rng.random()
+        want, _ = ndimage.label(body)
+        np.testing.assert_array_equal(kernels.label_pieces(body), want)
+    checkerboard = np.indices((9, 11)).sum(axis=0) % 2 == 0  # the most pieces a frame holds
+    np.testing.assert_array_equal(
+        kernels.label_pieces(checkerboard), ndimage.label(checkerboard)[0]
+    )

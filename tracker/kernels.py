@@ -343,6 +343,69 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _root(parent: npt.NDArray[np.int32], a: int) -> int:
+    """The root of `a` in a union-find forest, halving the path on the way."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def label_pieces(body: B) -> npt.NDArray[np.int32]:
+    """`scipy.ndimage.label(body)[0]`: the 4-connected pieces of `body`, numbered from 1 in
+    the order of each one's first pixel in row-major order (0 elsewhere)."""
+    h, w = body.shape
+    out = np.zeros((h, w), np.int32)
+    parent = np.zeros(h * w // 2 + 2, np.int32)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if not body[v, u]:
+                continue
+            up = out[v - 1, u] if v > 0 else 0
+            left = out[v, u - 1] if u > 0 else 0
+            if up == 0 and left == 0:
+                n += 1
+                parent[n] = n
+                out[v, u] = n
+            elif up == 0 or left == 0 or up == left:
+                out[v, u] = max(up, left)
+            else:
+                a, b = _root(parent, up), _root(parent, left)
+                parent[max(a, b)] = min(a, b)  # a piece's root is its first label
+                out[v, u] = left
+    final = np.zeros(n + 1, np.int32)
+    count = 0
+    for k in range(1, n + 1):
+        r = _root(parent, k)
+        if r == k:
+            count += 1
+            final[k] = count
+        else:
+            final[k] = final[r]
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = final[out[v, u]]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def held_pieces(
+    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], row: I64, rows: int,
+    n_pieces: int,
+) -> I64:  # fmt: skip
+    """(rows, n_pieces) how many pixels of each piece each label holds, by the label's row
+    (`row[label]`): the bincount of row[labels]·n_pieces + pieces."""
+    out = np.zeros((rows, n_pieces), np.int64)
+    h, w = labels.shape
+    for v in range(h):
+        for u in range(w):
+            out[row[labels[v, u]], pieces[v, u]] += 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
     """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
     numbered in the order of each part's first node (as scipy's connected_components)."""
@@ -760,7 +823,8 @@ def warm_up() -> None:
         points, ceiling, points, np.eye(3)[None], cloud, starts, axes, 1.0, 1.0, 1.0,
         np.ones(1), 1.0,
     )  # fmt: skip
-    cut_at_steps(yes, xyz, f64, 1.0, f64)
+    label_pieces(cut_at_steps(yes, xyz, f64, 1.0, f64))
+    held_pieces(np.zeros((2, 2), np.uint16), np.zeros((2, 2), np.int32), one, 1, 1)
     moving_graph(np.ones(1, bool), one, one, np.zeros(1))
     part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))
     track = np.ones(can_win.shape[1], np.int64)

@@ -549,8 +549,8 @@ class Tracker:
         side of such a step is left out."""
         spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
         body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
-        pieces, _ = ndimage.label(body)
-        return np.asarray(pieces, np.int32)
+        pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
+        return pieces
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
@@ -637,10 +637,7 @@ class Tracker:
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
         for k, t in enumerate(self._tracks):
             row[t.id] = k + 1
-        held = np.bincount(
-            row[labels].ravel() * n_pieces + pieces.ravel(),
-            minlength=(len(self._tracks) + 1) * n_pieces,
-        ).reshape(-1, n_pieces)[1:]
+        held = kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
         held[:, 0] = 0
         size = held.sum(axis=1)
         big = (held >= p.min_pixels) & (held >= p.split_share * size[:, None])
