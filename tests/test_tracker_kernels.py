@@ -202,3 +202,20 @@ def test_pieces_are_numbered_as_scipy_labels_them():
     np.testing.assert_array_equal(
         kernels.label_pieces(checkerboard), ndimage.label(checkerboard)[0]
     )
+
+
+def test_point_stats_are_numpys_mean_min_and_max():
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(144, 176, 3)) * [1e-3, 1.0, 1e3] + 2.0
+    for n in (1, 2, 7, 9, 130, 400, 20000):
+        mask = np.zeros(144 * 176, bool)
+        mask[rng.choice(mask.size, n, replace=False)] = True
+        points = xyz[mask.reshape(144, 176)]  # as the tracker takes a mask's points
+        mean, lo, hi = kernels.point_stats(points)
+        np.testing.assert_array_equal(mean, points.mean(axis=0))
+        np.testing.assert_array_equal(lo, points.min(axis=0))
+        np.testing.assert_array_equal(hi, points.max(axis=0))
+    points[3, 1] = np.nan
+    _, lo, hi = kernels.point_stats(points)
+    np.testing.assert_array_equal(lo, points.min(axis=0))
+    np.testing.assert_array_equal(hi, points.max(axis=0))

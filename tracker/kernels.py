@@ -318,6 +318,23 @@ def track_distances(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def point_stats(points: F64) -> tuple[F64, F64, F64]:
+    """`points.mean(axis=0)`, `.min(axis=0)` and `.max(axis=0)` of (N, 3) C-ordered points,
+    N ≥ 1, in one pass: numpy sums such an array's rows in order, then divides by N, and a
+    nan anywhere in a column is that column's min and max."""
+    total = np.zeros(3)
+    lo = points[0].copy()
+    hi = points[0].copy()
+    for n in range(points.shape[0]):
+        for a in range(3):
+            x = points[n, a]
+            total[a] += x
+            lo[a] = lo[a] if (lo[a] <= x or lo[a] != lo[a]) else x
+            hi[a] = hi[a] if (hi[a] >= x or hi[a] != hi[a]) else x
+    return total / points.shape[0], lo, hi
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
     """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
     of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
@@ -824,6 +841,7 @@ def warm_up() -> None:
         np.ones(1), 1.0,
     )  # fmt: skip
     label_pieces(cut_at_steps(yes, xyz, f64, 1.0, f64))
+    point_stats(points)
     held_pieces(np.zeros((2, 2), np.uint16), np.zeros((2, 2), np.int32), one, 1, 1)
     moving_graph(np.ones(1, bool), one, one, np.zeros(1))
     part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))

@@ -597,7 +597,7 @@ class Tracker:
                 # without a belt, objects need not be rigid: a person's every view is whole
                 t.measured = usual == 0 or whole or self.belt is None
                 if t.measured:
-                    t.filter.correct(pts.mean(axis=0))
+                    t.filter.correct(kernels.point_stats(pts)[0])  # pts.mean(axis=0)
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
@@ -791,9 +791,9 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
 def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
     """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
     bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
+    centroid, lo, hi = kernels.point_stats(pts)
     return Track(
-        t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
-        bbox, len(pts), pts.astype(np.float32),
+        t.id, centroid, t.filter.velocity, lo, hi, bbox, len(pts), pts.astype(np.float32),
     )  # fmt: skip
 
 
