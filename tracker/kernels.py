@@ -102,6 +102,101 @@ def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> t
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def free_pixels(
+    valid: B, u0: F64, total: F64, xyz: F64, noise: F64, object_cost: float
+) -> tuple[B, I64, I64, F64, F64, F64]:
+    """The pixels some labelling of their neighbours could give an object, valid with
+    object_cost − u0 ≤ total (the sum of their ties): the mask, and in row-major order
+    (`np.nonzero`) their rows, columns, 3D points, range noise and u0 + total."""
+    h, w = valid.shape
+    free = np.zeros((h, w), np.bool_)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u] and object_cost - u0[v, u] <= total[v, u]:
+                free[v, u] = True
+                n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    points = np.empty((n, 3))
+    at = np.empty(n)
+    ceiling = np.empty(n)
+    m = 0
+    for v in range(h):
+        for u in range(w):
+            if free[v, u]:
+                rows[m], cols[m] = v, u
+                points[m, 0], points[m, 1], points[m, 2] = xyz[v, u, 0], xyz[v, u, 1], xyz[v, u, 2]
+                at[m] = noise[v, u]
+                ceiling[m] = u0[v, u] + total[v, u]
+                m += 1
+    return free, rows, cols, points, at, ceiling
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def object_costs(
+    distance: F64, object_cost: float, beta: float, u0: F64, total: F64, rows: I64,
+    cols: I64, free: B,
+) -> F64:  # fmt: skip
+    """Each track's cost at the pixels (rows, cols), object_cost + β·distance; a pixel stays
+    `free` (in place) only where the cheapest is within its ties of u0:
+    cost.min(axis=0) − u0 ≤ total (a nan anywhere is the minimum, as numpy's)."""
+    k, n = distance.shape
+    cost = np.empty((k, n))
+    for m in range(n):
+        best = np.inf
+        for t in range(k):
+            c = object_cost + beta * distance[t, m]
+            cost[t, m] = c
+            best = c if t == 0 else (best if (best <= c or best != best) else c)
+        v, u = rows[m], cols[m]
+        free[v, u] = best - u0[v, u] <= total[v, u]
+    return cost
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def cut_nodes(
+    free: B, rows: I64, cols: I64, u0: F64, total: F64, cost: F64, floor: F64
+) -> tuple[I64, I64, I64, F64, F64, F64]:
+    """The cut's nodes, every `free` pixel in row-major order: each pixel's node (−1 if
+    none), the nodes' rows and columns, their costs (labels × nodes: u0 for the background,
+    `cost` for the tracks where it was measured, at the pixels (rows, cols), else 0: an
+    invalid pixel), the tracks' costs from the shape alone (`floor` there, else nan) and
+    the nodes' total ties."""
+    h, w = free.shape
+    k = cost.shape[0]
+    column = np.full((h, w), -1, np.int64)
+    for c in range(rows.size):
+        column[rows[c], cols[c]] = c
+    index = np.full((h, w), -1, np.int64)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if free[v, u]:
+                index[v, u] = n
+                n += 1
+    where_v = np.empty(n, np.int64)
+    where_u = np.empty(n, np.int64)
+    unary = np.zeros((k + 1, n))
+    least = np.full((k, n), np.nan)
+    ties = np.empty(n)
+    for v in range(h):
+        for u in range(w):
+            a = index[v, u]
+            if a < 0:
+                continue
+            where_v[a], where_u[a] = v, u
+            unary[0, a] = u0[v, u]
+            ties[a] = total[v, u]
+            c = column[v, u]
+            if c >= 0:
+                for t in range(k):
+                    unary[t + 1, a] = cost[t, c]
+                    least[t, a] = floor[t, c]
+    return index, where_v, where_u, unary, least, ties
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64]:
     """Edges (i, j, weight) between neighbouring free pixels (`index` ≥ 0: their node
     number; node n at (rows[n], cols[n]), in row-major order), direction by direction."""
@@ -827,9 +922,11 @@ def warm_up() -> None:
         return
     f64, i64, yes = np.zeros((2, 2)), np.zeros((2, 2), np.int64), np.ones((2, 2), bool)
     xyz, wt = np.zeros((2, 2, 3)), np.zeros((4, 2, 2))
-    rows, cols = np.nonzero(yes)  # non-contiguous, as np.nonzero gives them
     one = np.zeros(1, np.int64)
     tie_weights(*tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    free, rows, cols, _, _, _ = free_pixels(yes, f64, f64, xyz, f64, 0.0)  # all four free
+    cost = object_costs(np.zeros((1, 4)), 1.0, 1.0, f64, f64, rows, cols, free)
+    cut_nodes(free, rows, cols, f64, f64, cost, cost)
     free_edges(i64, wt, rows, cols)
     add_fixed_ties(np.zeros((2, 4)), i64, wt, rows, cols)
     add_fixed_ties_at(np.zeros(1), i64, wt, one, one)

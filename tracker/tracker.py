@@ -411,39 +411,27 @@ class Tracker:
         near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
         exps, slot = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
         wt, total = kernels.tie_weights(np.exp(exps), slot, valid, near, p.smoothness)
-        free = valid & (p.object_cost - u0 <= total)
-        if not free.any():
+        free, rows, cols, points, at, ceiling = kernels.free_pixels(
+            valid, u0, total, frame.xyz, noise, p.object_cost
+        )
+        if not rows.size:
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
-        first = np.nonzero(free)
-        ceiling = u0[first] + total[first]
-        distance, floor = self._distances_from(
-            self._tracks, frame.xyz[first], noise[first], ceiling
-        )
-        cost = p.object_cost + p.beta * distance
-        free[first] = cost.min(axis=0) - u0[first] <= total[first]
+        distance, floor = self._distances_from(self._tracks, points, at, ceiling)
+        cost = kernels.object_costs(distance, p.object_cost, p.beta, u0, total, rows, cols, free)
         if not free.any():
             return labels
-        column = np.full((h, w), -1, np.int64)
-        column[first] = np.arange(first[0].size)
         if not valid.all():
             runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
             keep = np.unique(runs[free])
             free |= ~valid & np.isin(runs, keep[keep > 0])
-        n = int(free.sum())
-        index = np.full((h, w), -1, np.int64)
-        index[free] = np.arange(n)
-        where = np.nonzero(free)
-        unary = np.zeros((len(self._tracks) + 1, n))
-        unary[0] = u0[where]
-        known = column[where]  # invalid pixels have no column: no data cost either way
-        measured = known >= 0
-        unary[1:, measured] = cost[:, known[measured]]
+        # invalid pixels have no data cost either way; where a track's surface was not
+        # measured, `least` holds its cost from the shape alone
+        index, *nodes, unary, least, ties = kernels.cut_nodes(
+            free, rows, cols, u0, total, cost, floor
+        )
+        where = (nodes[0], nodes[1])  # the nodes' pixels
         kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
-        # where a track's surface was not measured, its cost from the shape alone
-        least = np.full((len(self._tracks), n), np.nan)
-        least[:, measured] = floor[:, known[measured]]
-        ties = total[where]
 
         def measure(tracks: I64, nodes: I64) -> None:
             # A node never takes a label that costs more than its ties above every label
