@@ -413,6 +413,51 @@ def track_distances(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def label_points(
+    labels: npt.NDArray[np.uint16], xyz: F64, ids: I64
+) -> tuple[I64, I64, F64]:  # fmt: skip
+    """Each id's pixels in `labels`: (ids, 4) their box (first row, row past the last, first
+    column, column past the last, as `ndimage.find_objects`; 0s where none), where each
+    id's points start (ids + 1) in the (N, 3) 3D points of them all, each id's in
+    row-major order (`xyz[box][labels[box] == id]`)."""
+    h, w = labels.shape
+    top = 0
+    for k in range(ids.size):
+        top = max(top, ids[k])
+    slot = np.full(top + 1, -1, np.int64)
+    for k in range(ids.size):
+        slot[ids[k]] = k
+    boxes = np.zeros((ids.size, 4), np.int64)
+    starts = np.zeros(ids.size + 1, np.int64)
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            k = slot[lab] if lab <= top else -1
+            if k < 0:
+                continue
+            if starts[k + 1] == 0:
+                boxes[k, 0], boxes[k, 2] = v, u
+            boxes[k, 1] = v + 1
+            boxes[k, 2] = min(boxes[k, 2], u)
+            boxes[k, 3] = max(boxes[k, 3], u + 1)
+            starts[k + 1] += 1
+    for k in range(ids.size):
+        starts[k + 1] += starts[k]
+    points = np.empty((starts[-1], 3))
+    fill = starts[:-1].copy()
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            k = slot[lab] if lab <= top else -1
+            if k < 0:
+                continue
+            points[fill[k], 0], points[fill[k], 1] = xyz[v, u, 0], xyz[v, u, 1]
+            points[fill[k], 2] = xyz[v, u, 2]
+            fill[k] += 1
+    return boxes, starts, points
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def point_stats(points: F64) -> tuple[F64, F64, F64]:
     """`points.mean(axis=0)`, `.min(axis=0)` and `.max(axis=0)` of (N, 3) C-ordered points,
     N ≥ 1, in one pass: numpy sums such an array's rows in order, then divides by N, and a
@@ -939,6 +984,7 @@ def warm_up() -> None:
     )  # fmt: skip
     label_pieces(cut_at_steps(yes, xyz, f64, 1.0, f64))
     point_stats(points)
+    label_points(np.zeros((2, 2), np.uint16), xyz, one)
     held_pieces(np.zeros((2, 2), np.uint16), np.zeros((2, 2), np.int32), one, 1, 1)
     moving_graph(np.ones(1, bool), one, one, np.zeros(1))
     part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))

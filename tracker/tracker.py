@@ -168,7 +168,6 @@ class _Candidate:
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
-_NO_NODES = np.zeros(0, np.int64)
 
 
 def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
@@ -550,15 +549,19 @@ class Tracker:
         born = self._reconcile(frame, labels)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels) if ready else None
-        boxes = ndimage.find_objects(labels)
+        # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
+        corners, starts, held = kernels.label_points(
+            labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
+        )
         piece_boxes: list[tuple[slice, slice] | None] | None = None
-        for t in self._tracks:
-            box = boxes[t.id - 1] if t.id <= len(boxes) else None
+        for k, t in enumerate(self._tracks):
+            r0, r1, c0, c1 = corners[k].tolist()
+            box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
             mask = labels[box] == t.id if box is not None else _NONE  # within the box
-            n = int(np.count_nonzero(mask))
+            n = int(starts[k + 1] - starts[k])
             if n >= p.min_pixels:
                 assert box is not None
-                mask_pts = frame.xyz[box][mask]
+                mask_pts = held[starts[k] : starts[k + 1]]
                 pts = mask_pts
                 entering = _on_border(box, labels.shape)
                 if pieces is not None and entering:
@@ -819,10 +822,11 @@ def _solve_by_parts(
     ]  # fmt: skip
     # every label's costs exact wherever a cut of more than two labels may weigh them;
     # with two, a cost left inf is one the track cannot win whatever the neighbours hold
-    measure(
-        np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi] + [_NO_NODES]),
-        np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi] + [_NO_NODES]),
-    )
+    if multi:
+        measure(
+            np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi]),
+            np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi]),
+        )
     for part, edges, labels in multi:
         local[part] = np.arange(part.size)
         problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
