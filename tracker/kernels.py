@@ -165,9 +165,6 @@ def cut_nodes(
     the nodes' total ties."""
     h, w = free.shape
     k = cost.shape[0]
-    column = np.full((h, w), -1, np.int64)
-    for c in range(rows.size):
-        column[rows[c], cols[c]] = c
     index = np.full((h, w), -1, np.int64)
     n = 0
     for v in range(h):
@@ -180,6 +177,7 @@ def cut_nodes(
     unary = np.zeros((k + 1, n))
     least = np.full((k, n), np.nan)
     ties = np.empty(n)
+    c = 0  # the next of (rows, cols), both in row-major order
     for v in range(h):
         for u in range(w):
             a = index[v, u]
@@ -188,8 +186,9 @@ def cut_nodes(
             where_v[a], where_u[a] = v, u
             unary[0, a] = u0[v, u]
             ties[a] = total[v, u]
-            c = column[v, u]
-            if c >= 0:
+            while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
+                c += 1
+            if c < rows.size and rows[c] == v and cols[c] == u:
                 for t in range(k):
                     unary[t + 1, a] = cost[t, c]
                     least[t, a] = floor[t, c]
@@ -609,12 +608,15 @@ def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def split_parts(unary: F64, i: I64, j: I64, ties: F64) -> tuple[I64, I64, I64, I64, I64, I64, B]:
+def split_parts(
+    unary: F64, i: I64, j: I64, ties: F64
+) -> tuple[I64, I64, I64, I64, I64, I64, B, I64]:
     """The parts of a Potts problem (nodes joined by edges i, j; see `parts`) and who may
     win them: each node's part, the nodes and the edges grouped by part (order, bounds, as
-    `_grouped`), each node's cheapest label (`np.argmin(unary, axis=0)`), and (labels,
-    parts) whether a label may win some node of the part: its cost within the node's
-    `ties` of the cheapest (the background always may)."""
+    `_grouped`), each node's cheapest label (`np.argmin(unary, axis=0)`), (labels, parts)
+    whether a label may win some node of the part: its cost within the node's `ties` of
+    the cheapest (the background always may), and how many labels may in each part an
+    edge joins (0 in the others)."""
     n_labels, n = unary.shape
     count, part_of = parts(n, i, j)
     order, bounds = _grouped(part_of, count)
@@ -637,17 +639,31 @@ def split_parts(unary: F64, i: I64, j: I64, ties: F64) -> tuple[I64, I64, I64, I
         for r in range(1, n_labels):
             if unary[r, v] <= limit:
                 can_win[r, part_of[v]] = True
-    return part_of, order, bounds, edge_order, edge_bounds, chosen, can_win
+    contenders = np.zeros(count, np.int64)
+    for e in range(i.size):
+        contenders[part_of[i[e]]] = 1
+    for k in range(count):
+        if contenders[k]:
+            contenders[k] = can_win[:, k].sum()
+    return part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def binary_parts(
     unary: F64, i: I64, j: I64, w: F64, part_of: I64, order: I64, edge_order: I64,
-    binary: B, track: I64,
+    binary: B, can_win: B,
 ) -> tuple[I64, I64, F64, I64, I64, F64]:  # fmt: skip
     """The nodes of the `binary` parts (in `order`), the one track that meets the background
-    in each (`track`, by part), their costs for the background and that track (2, nodes),
-    and the edges between them (in `edge_order`; i, j numbered among those nodes, w)."""
+    there (the first that `can_win` the node's part), their costs for the background and
+    that track (2, nodes), and the edges between them (in `edge_order`; i, j numbered
+    among those nodes, w)."""
+    track = np.ones(binary.size, np.int64)
+    for k in range(binary.size):
+        if binary[k]:
+            for r in range(1, can_win.shape[0]):
+                if can_win[r, k]:
+                    track[k] = r
+                    break
     local = np.full(part_of.size, -1, np.int64)
     m = 0
     for v in order:
@@ -987,9 +1003,8 @@ def warm_up() -> None:
     label_points(np.zeros((2, 2), np.uint16), xyz, one)
     held_pieces(np.zeros((2, 2), np.uint16), np.zeros((2, 2), np.int32), one, 1, 1)
     moving_graph(np.ones(1, bool), one, one, np.zeros(1))
-    part_of, order, _, edge_order, _, _, can_win = split_parts(f64, one, one, np.zeros(2))
-    track = np.ones(can_win.shape[1], np.int64)
-    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], track)
+    part_of, order, _, edge_order, _, _, can_win, _ = split_parts(f64, one, one, np.zeros(2))
+    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], can_win)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))

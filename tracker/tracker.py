@@ -808,17 +808,15 @@ def _solve_by_parts(
     costs may be inf where the label cannot win)."""
     n = unary.shape[1]
     # chosen: each node's cheapest label, right for every node without edges
-    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win = kernels.split_parts(
-        unary, i, j, ties
+    # contenders: how many labels may win each part an edge joins (0 elsewhere)
+    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders = (
+        kernels.split_parts(unary, i, j, ties)
     )
     local = np.empty(n, np.int64)
-    joined = np.zeros(can_win.shape[1], bool)
-    joined[part_of[i]] = True
-    contenders = can_win.sum(axis=0)
     multi = [
         (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
          np.nonzero(can_win[:, k])[0])
-        for k in np.nonzero(joined & (contenders > 2))[0]
+        for k in np.nonzero(contenders > 2)[0]
     ]  # fmt: skip
     # every label's costs exact wherever a cut of more than two labels may weigh them;
     # with two, a cost left inf is one the track cannot win whatever the neighbours hold
@@ -831,11 +829,11 @@ def _solve_by_parts(
         local[part] = np.arange(part.size)
         problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
         chosen[part] = labels[solve_potts(problem)]
-    binary = joined & (contenders == 2)
+    binary = contenders == 2
     if binary.any():
         # every part where one track meets the background: one exact cut for them all
         nodes, track, pair, bi, bj, bw = kernels.binary_parts(
-            unary, i, j, w, part_of, order, edge_order, binary, np.argmax(can_win[1:], axis=0) + 1
+            unary, i, j, w, part_of, order, edge_order, binary, can_win
         )
         chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)
     return chosen
