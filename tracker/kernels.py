@@ -29,12 +29,10 @@ FACTORS = np.array([d[2] for d in NEIGHBOURS])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
+def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
     """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
-    NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
-    direction is in that list (−1: either is invalid; unset where neither is near)."""
+    NEIGHBOURS from p) with p or q in `near`, in the order `tie_weights` takes them."""
     h, w = valid.shape
-    slot = np.empty((4, h, w), np.int64)
     out = np.empty(4 * h * w)
     n = 0
     for v0 in range(h):
@@ -55,23 +53,21 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, 
                         b = xyz[v, u, 1] - xyz[v2, u2, 1]
                         c = xyz[v, u, 2] - xyz[v2, u2, 2]
                         out[n] = -(a**2 + b**2 + c**2) / two_sigma2
-                        slot[k, v, u] = n
                         n += 1
-                    else:
-                        slot[k, v, u] = -1
-    return out[:n], slot
+    return out[:n]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
+def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
     """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
-    the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
-    pixel is invalid; unset elsewhere), and the sum of each `near` pixel's weights, added
-    up in the order right, left, down, up, down-right, up-left, down-left, up-right (0
-    elsewhere)."""
+    the first pixel and direction (λ·factor·exp of the pair's exponent where both pixels
+    are valid, taken from `exps` in `tie_exponents`' order; λ·factor where either is
+    invalid; unset elsewhere), and the sum of each `near` pixel's weights, added up in the
+    order right, left, down, up, down-right, up-left, down-left, up-right (0 elsewhere)."""
     h, w = valid.shape
     wt = np.empty((4, h, w))
     total = np.zeros((h, w))
+    n = 0
     for v0 in range(h):
         for u0 in range(w):
             if not near[v0, u0]:
@@ -84,8 +80,13 @@ def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> t
                     v2, u2 = v + dv, u + du
                     if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
                         continue
-                    s = slot[k, v, u]
-                    wt[k, v, u] = sf * exps[s] if s >= 0 else sf
+                    if side == 1 and near[v, u]:
+                        continue  # done from there
+                    if valid[v, u] and valid[v2, u2]:
+                        wt[k, v, u] = sf * exps[n]
+                        n += 1
+                    else:
+                        wt[k, v, u] = sf
     for v in range(h):
         for u in range(w):
             if not near[v, u]:
@@ -984,7 +985,7 @@ def warm_up() -> None:
     f64, i64, yes = np.zeros((2, 2)), np.zeros((2, 2), np.int64), np.ones((2, 2), bool)
     xyz, wt = np.zeros((2, 2, 3)), np.zeros((4, 2, 2))
     one = np.zeros(1, np.int64)
-    tie_weights(*tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    tie_weights(tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
     free, rows, cols, _, _, _ = free_pixels(yes, f64, f64, xyz, f64, 0.0)  # all four free
     cost = object_costs(np.zeros((1, 4)), 1.0, 1.0, f64, f64, rows, cols, free)
     cut_nodes(free, rows, cols, f64, f64, cost, cost)

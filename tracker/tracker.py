@@ -408,8 +408,8 @@ class Tracker:
         # ties only where they can matter: where the pixel's own ties could free it, and
         # around invalid pixels (which a run of them may free)
         near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
-        exps, slot = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
-        wt, total = kernels.tie_weights(np.exp(exps), slot, valid, near, p.smoothness)
+        exps = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
+        wt, total = kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
         free, rows, cols, points, at, ceiling = kernels.free_pixels(
             valid, u0, total, frame.xyz, noise, p.object_cost
         )
