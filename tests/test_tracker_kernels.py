@@ -219,3 +219,23 @@ def test_point_stats_are_numpys_mean_min_and_max():
     _, lo, hi = kernels.point_stats(points)
     np.testing.assert_array_equal(lo, points.min(axis=0))
     np.testing.assert_array_equal(hi, points.max(axis=0))
+
+
+def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
+    rng = np.random.default_rng(9)
+    for _ in range(50):
+        h, w = rng.integers(2, 30, 2)
+        body = rng.random((h, w)) < rng.random()
+        xyz = rng.normal(size=(h, w, 3)) * 0.02
+        far = rng.integers(0, 3, (h, w)).astype(float)  # ties: the upper-left pixel goes
+        spread2 = rng.random((h, w)) * 1e-3
+        want = body.copy()
+        for dv, du in ((0, 1), (1, 0)):
+            a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
+                1e-3, spread2[a] + spread2[b]
+            )
+            jump &= body[a] | body[b]
+            want[a] &= ~(jump & (far[a] > far[b]))
+            want[b] &= ~(jump & ~(far[a] > far[b]))
+        np.testing.assert_array_equal(kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want)

@@ -481,12 +481,18 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
     step, the pixel with the larger range is the far one)."""
     h, w = body.shape
     out = body.copy()
-    for dv, du in ((0, 1), (1, 0)):
-        for v in range(h - dv):
-            for u in range(w - du):
-                v2, u2 = v + dv, u + du
-                if not (body[v, u] or body[v2, u2]):
-                    continue  # nothing to leave out
+    for v0 in range(h):
+        for u0 in range(w):
+            if not body[v0, u0]:
+                continue  # only pairs with an end in the body can leave something out
+            # its pairs right, down, left and up, each with its upper-left pixel first (the
+            # one left out on a tie); a pair left or up from the body is met from there
+            for v, u, v2, u2 in (
+                (v0, u0, v0, u0 + 1), (v0, u0, v0 + 1, u0),
+                (v0, u0 - 1, v0, u0), (v0 - 1, u0, v0, u0),
+            ):  # fmt: skip
+                if v < 0 or u < 0 or v2 >= h or u2 >= w or (v2 == v0 and u2 == u0 and body[v, u]):
+                    continue
                 a = xyz[v, u, 0] - xyz[v2, u2, 0]
                 b = xyz[v, u, 1] - xyz[v2, u2, 1]
                 c = xyz[v, u, 2] - xyz[v2, u2, 2]
