@@ -373,6 +373,8 @@ def track_distances(
     out = np.empty((tracks, n_points))
     rough = np.full((tracks, n_points), np.nan)
     bound2 = reach * reach
+    px, py, pz = points[:, 0].copy(), points[:, 1].copy(), points[:, 2].copy()
+    shapes = np.empty(n_points)
     for k in range(tracks):
         cloud = clouds[starts[k] : starts[k + 1]]
         boxes = _boxes(cloud)
@@ -382,8 +384,8 @@ def track_distances(
         m = inverses[k]
         m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
         m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
-        for n in range(n_points):
-            x, y, z = points[n, 0] - cx, points[n, 1] - cy, points[n, 2] - cz
+        for n in range(n_points):  # a loop without branches, for the compiler to vectorise
+            x, y, z = px[n] - cx, py[n] - cy, pz[n] - cz
             # term by term in einsum's order: i outer, j inner
             shape = 0.0
             shape += x * m00 * x
@@ -395,6 +397,9 @@ def track_distances(
             shape += z * m20 * x
             shape += z * m21 * y
             shape += z * m22 * z
+            shapes[n] = shape
+        for n in range(n_points):
+            shape = shapes[n]
             value = shape
             if surface_weight > 0:
                 alone = object_cost + beta * shape
