@@ -239,3 +239,12 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
             want[a] &= ~(jump & (far[a] > far[b]))
             want[b] &= ~(jump & ~(far[a] > far[b]))
         np.testing.assert_array_equal(kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want)
+
+
+def test_the_compiled_median_is_numpys():
+    rng = np.random.default_rng(10)
+    for n in (1, 2, 3, 8, 9, 100, 6263, 6264):
+        for values in (rng.random(n), rng.integers(0, 4, n).astype(float), np.sort(rng.random(n))):
+            assert kernels.median(values) == np.median(values)
+    values[1] = np.nan
+    assert np.isnan(kernels.median(values))

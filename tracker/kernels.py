@@ -976,6 +976,48 @@ def noise_fit(intensity: F64, amplitude: F64, valid: B, rng: F64, stride: int) -
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _select(a: F64, lo: int, hi: int, k: int) -> float:
+    """The k-th smallest of a[lo:hi + 1] (no nan), partly reordering it (quickselect)."""
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return a[k]
+    return a[k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def median(values: F64) -> float:
+    """`np.median(values)` of a 1-D array (at least one value): the middle value, or the
+    mean of the middle two, (a + b) / 2; nan if any is."""
+    a = values.copy()
+    n = a.size
+    for x in a:
+        if np.isnan(x):
+            return np.nan
+    upper = _select(a, 0, n - 1, n // 2)
+    if n % 2:
+        return upper
+    lower = a[0]  # the largest of those left below the upper middle
+    for x in a[1 : n // 2]:
+        lower = max(lower, x)
+    return (lower + upper) / 2.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def noise_scaled(shape: F64, scale: float, floor: float) -> F64:
     """`np.maximum(scale * shape, floor)`."""
     h, w = shape.shape
@@ -1024,6 +1066,7 @@ def warm_up() -> None:
         expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
     noise_scaled(noise_fit(f64, f64, yes, f64, 1)[0], 1.0, 1.0)
+    median(np.zeros(2))
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(f64, f64, yes, counts, f64, counts, f64, yes, yes, f64, 1.0, 1.0, 1.0, 1, 1.0, 1.0)

@@ -33,6 +33,6 @@ def range_noise(frame: Frame, floor_m: float) -> F64:
     )
     if not ratios.size:
         return np.where(frame.valid, floor_m, np.inf)
-    scale = MAD_TO_SIGMA * float(np.median(ratios))
+    scale = MAD_TO_SIGMA * float(kernels.median(ratios))
     noise: F64 = kernels.noise_scaled(shape, scale, floor_m)
     return noise
