@@ -248,3 +248,18 @@ def test_the_compiled_median_is_numpys():
             assert kernels.median(values) == np.median(values)
     values[1] = np.nan
     assert np.isnan(kernels.median(values))
+
+
+def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():
+    rng = np.random.default_rng(12)
+    clouds = [rng.normal(size=(n, 3)) * [0.05, 0.1, 0.02] for n in (1, 7, 300, 401)]
+    clouds.append(np.repeat(rng.normal(size=(3, 3)), 40, axis=0))  # many ties
+    starts = np.cumsum([0] + [len(c) for c in clouds])
+    out, axes = kernels.sort_surfaces(np.concatenate(clouds), starts)
+    for k, cloud in enumerate(clouds):
+        got = out[starts[k] : starts[k + 1]]
+        along = got[:, axes[k]]
+        for s in range(kernels.SLAB, len(got), kernels.SLAB):
+            assert along[s - kernels.SLAB : s].max() <= along[s:].min()
+        np.testing.assert_array_equal(np.unique(got, axis=0), np.unique(cloud, axis=0))
+        assert len(got) == len(cloud)

@@ -704,6 +704,36 @@ def binary_parts(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ascending(keys: F64, lo: float, hi: float) -> I64:
+    """An order that sorts `keys` (within [lo, hi], no nan), ties in any order: a counting
+    sort into as many buckets as keys, then an insertion sort for the few it leaves out
+    of order (keys sharing a bucket)."""
+    n = keys.size
+    scale = n / (hi - lo) if hi > lo else 0.0
+    bounds = np.zeros(n + 1, np.int64)
+    bucket = np.empty(n, np.int64)
+    for i in range(n):
+        b = min(int((keys[i] - lo) * scale), n - 1)
+        bucket[i] = b
+        bounds[b + 1] += 1
+    for b in range(n):
+        bounds[b + 1] += bounds[b]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[bounds[bucket[i]]] = i
+        bounds[bucket[i]] += 1
+    for i in range(1, n):
+        j = order[i]
+        key = keys[j]
+        m = i - 1
+        while m >= 0 and keys[order[m]] > key:
+            order[m + 1] = order[m]
+            m -= 1
+        order[m + 1] = j
+    return order
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
     slab of SLAB points along the widest of the other two (as `track_distances` takes
@@ -712,13 +742,13 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     axes = np.zeros(starts.size - 1, np.int64)
     for k in range(starts.size - 1):
         cloud = clouds[starts[k] : starts[k + 1]]
-        widest = -1.0
+        widest, lo, hi = -1.0, 0.0, 0.0
         for a in range(3):
             spread = cloud[:, a].max() - cloud[:, a].min()
             if spread > widest:
-                widest = spread
+                widest, lo, hi = spread, cloud[:, a].min(), cloud[:, a].max()
                 axes[k] = a
-        order = np.argsort(cloud[:, axes[k]])
+        order = _ascending(cloud[:, axes[k]], lo, hi)
         for n in range(order.size):
             out[starts[k] + n] = cloud[order[n]]
         # within each slab, along the next widest axis: its boxes are then small both ways
