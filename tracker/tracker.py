@@ -508,6 +508,8 @@ class Tracker:
             cloud, axis = kernels.sort_surfaces(np.concatenate([t.cloud for t in stale]), bounds)
             for k, t in enumerate(stale):
                 self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
+            if len(stale) == len(tracks):  # all of them, in order
+                return cloud, bounds, axis
         starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
         if not tracks:
             return _NO_POINTS, starts, np.zeros(0, np.int64)
