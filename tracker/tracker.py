@@ -17,6 +17,7 @@ stays put while the belt runs becomes scenery. Each pixel's range noise
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -193,12 +194,26 @@ def _subsample(points: F64, n: int) -> F64:
     return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
 
 
+@functools.lru_cache(maxsize=4)
+def _floor_cov(floor_m: float) -> F64:
+    """`np.eye(3) * floor_m**2`, made once (read-only)."""
+    out = np.eye(3) * floor_m**2
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _no_spread(shape: tuple[int, int]) -> F64:
+    """`np.zeros(shape)`, made once (never written to)."""
+    return np.zeros(shape)
+
+
 def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
     """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
     object reaches down to the belt, though the camera sees mostly its top: the spread
     along the belt's normal is at least that of a solid from the belt to its top."""
     cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
-    cov = cov + np.eye(3) * floor_m**2
+    cov = cov + _floor_cov(floor_m)
     if belt is not None and len(points):
         n = belt.normal
         top = stats.percentile((points - belt.point) @ n, 90)
@@ -536,7 +551,7 @@ class Tracker:
         `connect_m`, or, given the range noise, than three times the noise of their
         difference where that is more (a seed on a far, dark target); the pixel on the far
         side of such a step is left out."""
-        spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
+        spread2 = _no_spread(frame.shape) if noise is None else 9.0 * noise**2
         body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
         pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
         return pieces
