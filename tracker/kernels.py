@@ -1025,8 +1025,8 @@ def _select(a: F64, lo: int, hi: int, k: int) -> float:
         elif k >= i:
             lo = i
         else:
-            return a[k]
-    return a[k]
+            return float(a[k])
+    return float(a[k])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1041,7 +1041,7 @@ def median(values: F64) -> float:
     upper = _select(a, 0, n - 1, n // 2)
     if n % 2:
         return upper
-    lower = a[0]  # the largest of those left below the upper middle
+    lower = float(a[0])  # the largest of those left below the upper middle
     for x in a[1 : n // 2]:
         lower = max(lower, x)
     return (lower + upper) / 2.0
