@@ -263,3 +263,14 @@ def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis
             assert along[s - kernels.SLAB : s].max() <= along[s:].min()
         np.testing.assert_array_equal(np.unique(got, axis=0), np.unique(cloud, axis=0))
         assert len(got) == len(cloud)
+
+
+def test_grouping_is_a_stable_argsort():
+    rng = np.random.default_rng(13)
+    for n in (0, 1, 2, 3, 10, 101, 1000):
+        for count in (1, 3, 40):
+            keys = rng.integers(0, count, n).astype(np.int64)
+            order, bounds = kernels._grouped(keys, count)
+            want = np.argsort(keys, kind="stable")
+            np.testing.assert_array_equal(order, want)
+            np.testing.assert_array_equal(bounds, np.searchsorted(keys[want], np.arange(count + 1)))

@@ -605,17 +605,31 @@ def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
     """`np.argsort(keys, kind="stable")` of keys in [0, count), and where each key's run
-    starts in it (`np.searchsorted(sorted keys, np.arange(count + 1))`): a counting sort."""
+    starts in it (`np.searchsorted(sorted keys, np.arange(count + 1))`): a counting sort,
+    of each half of the keys side by side (few keys, many of each: two chains of counts
+    to wait on, not one)."""
+    n = keys.size
+    half = (n + 1) // 2
+    first = np.zeros(count, np.int64)  # of each key, how many in the first half
+    second = np.zeros(count, np.int64)
+    for m in range(n - half):
+        first[keys[m]] += 1
+        second[keys[half + m]] += 1
+    if n % 2:
+        first[keys[half - 1]] += 1
     bounds = np.zeros(count + 1, np.int64)
-    for k in keys:
-        bounds[k + 1] += 1
     for k in range(count):
-        bounds[k + 1] += bounds[k]
+        bounds[k + 1] = bounds[k] + first[k] + second[k]
     fill = bounds[:-1].copy()
-    order = np.empty(keys.size, np.int64)
-    for n in range(keys.size):
-        order[fill[keys[n]]] = n
-        fill[keys[n]] += 1
+    fill2 = fill + first
+    order = np.empty(n, np.int64)
+    for m in range(n - half):
+        order[fill[keys[m]]] = m
+        fill[keys[m]] += 1
+        order[fill2[keys[half + m]]] = half + m
+        fill2[keys[half + m]] += 1
+    if n % 2:
+        order[fill[keys[half - 1]]] = half - 1
     return order, bounds
 
 
