@@ -168,3 +168,109 @@ def test_the_filter_update_takes_exactly_what_the_matrix_form_multiplies_out():
                 x, p = x + k @ (value - h @ x), (np.eye(6) - k @ h) @ p
         np.testing.assert_array_equal(fast.x, x)
         np.testing.assert_array_equal(fast.P, p)
+
+
+def test_the_compiled_range_noise_is_the_numpy_one():
+    import dataclasses
+
+    from tofcut.tracker import noise, reference
+
+    for name in ("conveyor", "person"):
+        src = open_scene(name, 0)
+        frame, _ = decode(src, scene_exposure(src, 0.0, 0))
+        # and where the taps say nothing: a negative intensity, a zero amplitude, nan
+        intensity, amplitude = frame.intensity.copy(), frame.amplitude.copy()
+        intensity[3, :40], amplitude[5, 10:30], intensity[9, 50] = -1.0, 0.0, np.nan
+        odd = dataclasses.replace(frame, intensity=intensity, amplitude=amplitude)
+        blind = dataclasses.replace(frame, valid=np.zeros_like(frame.valid))
+        for f in (frame, odd, blind):
+            np.testing.assert_array_equal(
+                noise.range_noise(f, 0.004), reference.range_noise(f, 0.004)
+            )
+
+
+def test_pieces_are_numbered_as_scipy_labels_them():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(7)
+    for _ in range(300):
+        h, w = rng.integers(1, 40, 2)
+        body = rng.random((h, w)) < rng.random()
+        want, _ = ndimage.label(body)
+        np.testing.assert_array_equal(kernels.label_pieces(body), want)
+    checkerboard = np.indices((9, 11)).sum(axis=0) % 2 == 0  # the most pieces a frame holds
+    np.testing.assert_array_equal(
+        kernels.label_pieces(checkerboard), ndimage.label(checkerboard)[0]
+    )
+
+
+def test_point_stats_are_numpys_mean_min_and_max():
+    rng = np.random.default_rng(8)
+    xyz = rng.normal(size=(144, 176, 3)) * [1e-3, 1.0, 1e3] + 2.0
+    for n in (1, 2, 7, 9, 130, 400, 20000):
+        mask = np.zeros(144 * 176, bool)
+        mask[rng.choice(mask.size, n, replace=False)] = True
+        points = xyz[mask.reshape(144, 176)]  # as the tracker takes a mask's points
+        mean, lo, hi = kernels.point_stats(points)
+        np.testing.assert_array_equal(mean, points.mean(axis=0))
+        np.testing.assert_array_equal(lo, points.min(axis=0))
+        np.testing.assert_array_equal(hi, points.max(axis=0))
+    points[3, 1] = np.nan
+    _, lo, hi = kernels.point_stats(points)
+    np.testing.assert_array_equal(lo, points.min(axis=0))
+    np.testing.assert_array_equal(hi, points.max(axis=0))
+
+
+def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
+    rng = np.random.default_rng(9)
+    for _ in range(50):
+        h, w = rng.integers(2, 30, 2)
+        body = rng.random((h, w)) < rng.random()
+        xyz = rng.normal(size=(h, w, 3)) * 0.02
+        far = rng.integers(0, 3, (h, w)).astype(float)  # ties: the upper-left pixel goes
+        spread2 = rng.random((h, w)) * 1e-3
+        want = body.copy()
+        for dv, du in ((0, 1), (1, 0)):
+            a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
+            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
+                1e-3, spread2[a] + spread2[b]
+            )
+            jump &= body[a] | body[b]
+            want[a] &= ~(jump & (far[a] > far[b]))
+            want[b] &= ~(jump & ~(far[a] > far[b]))
+        np.testing.assert_array_equal(kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want)
+
+
+def test_the_compiled_median_is_numpys():
+    rng = np.random.default_rng(10)
+    for n in (1, 2, 3, 8, 9, 100, 6263, 6264):
+        for values in (rng.random(n), rng.integers(0, 4, n).astype(float), np.sort(rng.random(n))):
+            assert kernels.median(values) == np.median(values)
+    values[1] = np.nan
+    assert np.isnan(kernels.median(values))
+
+
+def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():
+    rng = np.random.default_rng(12)
+    clouds = [rng.normal(size=(n, 3)) * [0.05, 0.1, 0.02] for n in (1, 7, 300, 401)]
+    clouds.append(np.repeat(rng.normal(size=(3, 3)), 40, axis=0))  # many ties
+    starts = np.cumsum([0] + [len(c) for c in clouds])
+    out, axes = kernels.sort_surfaces(np.concatenate(clouds), starts)
+    for k, cloud in enumerate(clouds):
+        got = out[starts[k] : starts[k + 1]]
+        along = got[:, axes[k]]
+        for s in range(kernels.SLAB, len(got), kernels.SLAB):
+            assert along[s - kernels.SLAB : s].max() <= along[s:].min()
+        np.testing.assert_array_equal(np.unique(got, axis=0), np.unique(cloud, axis=0))
+        assert len(got) == len(cloud)
+
+
+def test_grouping_is_a_stable_argsort():
+    rng = np.random.default_rng(13)
+    for n in (0, 1, 2, 3, 10, 101, 1000):
+        for count in (1, 3, 40):
+            keys = rng.integers(0, count, n).astype(np.int64)
+            order, bounds = kernels._grouped(keys, count)
+            want = np.argsort(keys, kind="stable")
+            np.testing.assert_array_equal(order, want)
+            np.testing.assert_array_equal(bounds, np.searchsorted(keys[want], np.arange(count + 1)))

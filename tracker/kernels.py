@@ -29,12 +29,10 @@ FACTORS = np.array([d[2] for d in NEIGHBOURS])
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, I64]:
+def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
     """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
-    NEIGHBOURS from p) with p or q in `near`, and (4, H, W) where p's pair in each
-    direction is in that list (−1: either is invalid; unset where neither is near)."""
+    NEIGHBOURS from p) with p or q in `near`, in the order `tie_weights` takes them."""
     h, w = valid.shape
-    slot = np.empty((4, h, w), np.int64)
     out = np.empty(4 * h * w)
     n = 0
     for v0 in range(h):
@@ -55,23 +53,21 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> tuple[F64, 
                         b = xyz[v, u, 1] - xyz[v2, u2, 1]
                         c = xyz[v, u, 2] - xyz[v2, u2, 2]
                         out[n] = -(a**2 + b**2 + c**2) / two_sigma2
-                        slot[k, v, u] = n
                         n += 1
-                    else:
-                        slot[k, v, u] = -1
-    return out[:n], slot
+    return out[:n]
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
+def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
     """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
-    the first pixel and direction (λ·factor·exp where `slot` says, λ·factor where either
-    pixel is invalid; unset elsewhere), and the sum of each `near` pixel's weights, added
-    up in the order right, left, down, up, down-right, up-left, down-left, up-right (0
-    elsewhere)."""
+    the first pixel and direction (λ·factor·exp of the pair's exponent where both pixels
+    are valid, taken from `exps` in `tie_exponents`' order; λ·factor where either is
+    invalid; unset elsewhere), and the sum of each `near` pixel's weights, added up in the
+    order right, left, down, up, down-right, up-left, down-left, up-right (0 elsewhere)."""
     h, w = valid.shape
     wt = np.empty((4, h, w))
     total = np.zeros((h, w))
+    n = 0
     for v0 in range(h):
         for u0 in range(w):
             if not near[v0, u0]:
@@ -84,8 +80,13 @@ def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> t
                     v2, u2 = v + dv, u + du
                     if not (v >= 0 and v2 < h and min(u, u2) >= 0 and max(u, u2) < w):
                         continue
-                    s = slot[k, v, u]
-                    wt[k, v, u] = sf * exps[s] if s >= 0 else sf
+                    if side == 1 and near[v, u]:
+                        continue  # done from there
+                    if valid[v, u] and valid[v2, u2]:
+                        wt[k, v, u] = sf * exps[n]
+                        n += 1
+                    else:
+                        wt[k, v, u] = sf
     for v in range(h):
         for u in range(w):
             if not near[v, u]:
@@ -99,6 +100,100 @@ def tie_weights(exps: F64, slot: I64, valid: B, near: B, smoothness: float) -> t
                     acc += wt[k, v - dv, u - du]
             total[v, u] = acc
     return wt, total
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def free_pixels(
+    valid: B, u0: F64, total: F64, xyz: F64, noise: F64, object_cost: float
+) -> tuple[B, I64, I64, F64, F64, F64]:
+    """The pixels some labelling of their neighbours could give an object, valid with
+    object_cost − u0 ≤ total (the sum of their ties): the mask, and in row-major order
+    (`np.nonzero`) their rows, columns, 3D points, range noise and u0 + total."""
+    h, w = valid.shape
+    free = np.zeros((h, w), np.bool_)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u] and object_cost - u0[v, u] <= total[v, u]:
+                free[v, u] = True
+                n += 1
+    rows = np.empty(n, np.int64)
+    cols = np.empty(n, np.int64)
+    points = np.empty((n, 3))
+    at = np.empty(n)
+    ceiling = np.empty(n)
+    m = 0
+    for v in range(h):
+        for u in range(w):
+            if free[v, u]:
+                rows[m], cols[m] = v, u
+                points[m, 0], points[m, 1], points[m, 2] = xyz[v, u, 0], xyz[v, u, 1], xyz[v, u, 2]
+                at[m] = noise[v, u]
+                ceiling[m] = u0[v, u] + total[v, u]
+                m += 1
+    return free, rows, cols, points, at, ceiling
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def object_costs(
+    distance: F64, object_cost: float, beta: float, u0: F64, total: F64, rows: I64,
+    cols: I64, free: B,
+) -> F64:  # fmt: skip
+    """Each track's cost at the pixels (rows, cols), object_cost + β·distance; a pixel stays
+    `free` (in place) only where the cheapest is within its ties of u0:
+    cost.min(axis=0) − u0 ≤ total (a nan anywhere is the minimum, as numpy's)."""
+    k, n = distance.shape
+    cost = np.empty((k, n))
+    for m in range(n):
+        best = np.inf
+        for t in range(k):
+            c = object_cost + beta * distance[t, m]
+            cost[t, m] = c
+            best = c if t == 0 else (best if (best <= c or best != best) else c)
+        v, u = rows[m], cols[m]
+        free[v, u] = best - u0[v, u] <= total[v, u]
+    return cost
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def cut_nodes(
+    free: B, rows: I64, cols: I64, u0: F64, total: F64, cost: F64, floor: F64
+) -> tuple[I64, I64, I64, F64, F64, F64]:
+    """The cut's nodes, every `free` pixel in row-major order: each pixel's node (−1 if
+    none), the nodes' rows and columns, their costs (labels × nodes: u0 for the background,
+    `cost` for the tracks where it was measured, at the pixels (rows, cols), else 0: an
+    invalid pixel), the tracks' costs from the shape alone (`floor` there, else nan) and
+    the nodes' total ties."""
+    h, w = free.shape
+    k = cost.shape[0]
+    index = np.full((h, w), -1, np.int64)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if free[v, u]:
+                index[v, u] = n
+                n += 1
+    where_v = np.empty(n, np.int64)
+    where_u = np.empty(n, np.int64)
+    unary = np.zeros((k + 1, n))
+    least = np.full((k, n), np.nan)
+    ties = np.empty(n)
+    c = 0  # the next of (rows, cols), both in row-major order
+    for v in range(h):
+        for u in range(w):
+            a = index[v, u]
+            if a < 0:
+                continue
+            where_v[a], where_u[a] = v, u
+            unary[0, a] = u0[v, u]
+            ties[a] = total[v, u]
+            while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
+                c += 1
+            if c < rows.size and rows[c] == v and cols[c] == u:
+                for t in range(k):
+                    unary[t + 1, a] = cost[t, c]
+                    least[t, a] = floor[t, c]
+    return index, where_v, where_u, unary, least, ties
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -278,6 +373,8 @@ def track_distances(
     out = np.empty((tracks, n_points))
     rough = np.full((tracks, n_points), np.nan)
     bound2 = reach * reach
+    px, py, pz = points[:, 0].copy(), points[:, 1].copy(), points[:, 2].copy()
+    shapes = np.empty(n_points)
     for k in range(tracks):
         cloud = clouds[starts[k] : starts[k + 1]]
         boxes = _boxes(cloud)
@@ -287,8 +384,8 @@ def track_distances(
         m = inverses[k]
         m00, m01, m02, m10, m11, m12 = m[0, 0], m[0, 1], m[0, 2], m[1, 0], m[1, 1], m[1, 2]
         m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
-        for n in range(n_points):
-            x, y, z = points[n, 0] - cx, points[n, 1] - cy, points[n, 2] - cz
+        for n in range(n_points):  # a loop without branches, for the compiler to vectorise
+            x, y, z = px[n] - cx, py[n] - cy, pz[n] - cz
             # term by term in einsum's order: i outer, j inner
             shape = 0.0
             shape += x * m00 * x
@@ -300,6 +397,9 @@ def track_distances(
             shape += z * m20 * x
             shape += z * m21 * y
             shape += z * m22 * z
+            shapes[n] = shape
+        for n in range(n_points):
+            shape = shapes[n]
             value = shape
             if surface_weight > 0:
                 alone = object_cost + beta * shape
@@ -318,18 +418,86 @@ def track_distances(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def label_points(
+    labels: npt.NDArray[np.uint16], xyz: F64, ids: I64
+) -> tuple[I64, I64, F64]:  # fmt: skip
+    """Each id's pixels in `labels`: (ids, 4) their box (first row, row past the last, first
+    column, column past the last, as `ndimage.find_objects`; 0s where none), where each
+    id's points start (ids + 1) in the (N, 3) 3D points of them all, each id's in
+    row-major order (`xyz[box][labels[box] == id]`)."""
+    h, w = labels.shape
+    top = 0
+    for k in range(ids.size):
+        top = max(top, ids[k])
+    slot = np.full(top + 1, -1, np.int64)
+    for k in range(ids.size):
+        slot[ids[k]] = k
+    boxes = np.zeros((ids.size, 4), np.int64)
+    starts = np.zeros(ids.size + 1, np.int64)
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            k = slot[lab] if lab <= top else -1
+            if k < 0:
+                continue
+            if starts[k + 1] == 0:
+                boxes[k, 0], boxes[k, 2] = v, u
+            boxes[k, 1] = v + 1
+            boxes[k, 2] = min(boxes[k, 2], u)
+            boxes[k, 3] = max(boxes[k, 3], u + 1)
+            starts[k + 1] += 1
+    for k in range(ids.size):
+        starts[k + 1] += starts[k]
+    points = np.empty((starts[-1], 3))
+    fill = starts[:-1].copy()
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            k = slot[lab] if lab <= top else -1
+            if k < 0:
+                continue
+            points[fill[k], 0], points[fill[k], 1] = xyz[v, u, 0], xyz[v, u, 1]
+            points[fill[k], 2] = xyz[v, u, 2]
+            fill[k] += 1
+    return boxes, starts, points
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def point_stats(points: F64) -> tuple[F64, F64, F64]:
+    """`points.mean(axis=0)`, `.min(axis=0)` and `.max(axis=0)` of (N, 3) C-ordered points,
+    N ≥ 1, in one pass: numpy sums such an array's rows in order, then divides by N, and a
+    nan anywhere in a column is that column's min and max."""
+    total = np.zeros(3)
+    lo = points[0].copy()
+    hi = points[0].copy()
+    for n in range(points.shape[0]):
+        for a in range(3):
+            x = points[n, a]
+            total[a] += x
+            lo[a] = lo[a] if (lo[a] <= x or lo[a] != lo[a]) else x
+            hi[a] = hi[a] if (hi[a] >= x or hi[a] != hi[a]) else x
+    return total / points.shape[0], lo, hi
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
     """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
     of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
     step, the pixel with the larger range is the far one)."""
     h, w = body.shape
     out = body.copy()
-    for dv, du in ((0, 1), (1, 0)):
-        for v in range(h - dv):
-            for u in range(w - du):
-                v2, u2 = v + dv, u + du
-                if not (body[v, u] or body[v2, u2]):
-                    continue  # nothing to leave out
+    for v0 in range(h):
+        for u0 in range(w):
+            if not body[v0, u0]:
+                continue  # only pairs with an end in the body can leave something out
+            # its pairs right, down, left and up, each with its upper-left pixel first (the
+            # one left out on a tie); a pair left or up from the body is met from there
+            for v, u, v2, u2 in (
+                (v0, u0, v0, u0 + 1), (v0, u0, v0 + 1, u0),
+                (v0, u0 - 1, v0, u0), (v0 - 1, u0, v0, u0),
+            ):  # fmt: skip
+                if v < 0 or u < 0 or v2 >= h or u2 >= w or (v2 == v0 and u2 == u0 and body[v, u]):
+                    continue
                 a = xyz[v, u, 0] - xyz[v2, u2, 0]
                 b = xyz[v, u, 1] - xyz[v2, u2, 1]
                 c = xyz[v, u, 2] - xyz[v2, u2, 2]
@@ -339,6 +507,69 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
                         out[v, u] = False
                     else:
                         out[v2, u2] = False
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _root(parent: npt.NDArray[np.int32], a: int) -> int:
+    """The root of `a` in a union-find forest, halving the path on the way."""
+    while parent[a] != a:
+        parent[a] = parent[parent[a]]
+        a = parent[a]
+    return a
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def label_pieces(body: B) -> npt.NDArray[np.int32]:
+    """`scipy.ndimage.label(body)[0]`: the 4-connected pieces of `body`, numbered from 1 in
+    the order of each one's first pixel in row-major order (0 elsewhere)."""
+    h, w = body.shape
+    out = np.zeros((h, w), np.int32)
+    parent = np.zeros(h * w // 2 + 2, np.int32)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            if not body[v, u]:
+                continue
+            up = out[v - 1, u] if v > 0 else 0
+            left = out[v, u - 1] if u > 0 else 0
+            if up == 0 and left == 0:
+                n += 1
+                parent[n] = n
+                out[v, u] = n
+            elif up == 0 or left == 0 or up == left:
+                out[v, u] = max(up, left)
+            else:
+                a, b = _root(parent, up), _root(parent, left)
+                parent[max(a, b)] = min(a, b)  # a piece's root is its first label
+                out[v, u] = left
+    final = np.zeros(n + 1, np.int32)
+    count = 0
+    for k in range(1, n + 1):
+        r = _root(parent, k)
+        if r == k:
+            count += 1
+            final[k] = count
+        else:
+            final[k] = final[r]
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = final[out[v, u]]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def held_pieces(
+    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], row: I64, rows: int,
+    n_pieces: int,
+) -> I64:  # fmt: skip
+    """(rows, n_pieces) how many pixels of each piece each label holds, by the label's row
+    (`row[label]`): the bincount of row[labels]·n_pieces + pieces."""
+    out = np.zeros((rows, n_pieces), np.int64)
+    h, w = labels.shape
+    for v in range(h):
+        for u in range(w):
+            out[row[labels[v, u]], pieces[v, u]] += 1
     return out
 
 
@@ -372,14 +603,148 @@ def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def any_by_part(win: B, part_of: I64, count: int) -> B:
-    """(rows, parts): whether any node of each part is True in each row of `win`."""
-    out = np.zeros((win.shape[0], count), np.bool_)
-    for v in range(win.shape[1]):
-        for r in range(win.shape[0]):
-            if win[r, v]:
-                out[r, part_of[v]] = True
-    return out
+def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
+    """`np.argsort(keys, kind="stable")` of keys in [0, count), and where each key's run
+    starts in it (`np.searchsorted(sorted keys, np.arange(count + 1))`): a counting sort,
+    of each half of the keys side by side (few keys, many of each: two chains of counts
+    to wait on, not one)."""
+    n = keys.size
+    half = (n + 1) // 2
+    first = np.zeros(count, np.int64)  # of each key, how many in the first half
+    second = np.zeros(count, np.int64)
+    for m in range(n - half):
+        first[keys[m]] += 1
+        second[keys[half + m]] += 1
+    if n % 2:
+        first[keys[half - 1]] += 1
+    bounds = np.zeros(count + 1, np.int64)
+    for k in range(count):
+        bounds[k + 1] = bounds[k] + first[k] + second[k]
+    fill = bounds[:-1].copy()
+    fill2 = fill + first
+    order = np.empty(n, np.int64)
+    for m in range(n - half):
+        order[fill[keys[m]]] = m
+        fill[keys[m]] += 1
+        order[fill2[keys[half + m]]] = half + m
+        fill2[keys[half + m]] += 1
+    if n % 2:
+        order[fill[keys[half - 1]]] = half - 1
+    return order, bounds
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def split_parts(
+    unary: F64, i: I64, j: I64, ties: F64
+) -> tuple[I64, I64, I64, I64, I64, I64, B, I64]:
+    """The parts of a Potts problem (nodes joined by edges i, j; see `parts`) and who may
+    win them: each node's part, the nodes and the edges grouped by part (order, bounds, as
+    `_grouped`), each node's cheapest label (`np.argmin(unary, axis=0)`), (labels, parts)
+    whether a label may win some node of the part: its cost within the node's `ties` of
+    the cheapest (the background always may), and how many labels may in each part an
+    edge joins (0 in the others)."""
+    n_labels, n = unary.shape
+    count, part_of = parts(n, i, j)
+    order, bounds = _grouped(part_of, count)
+    edge_order, edge_bounds = _grouped(part_of[i], count)
+    chosen = np.empty(n, np.int64)
+    can_win = np.zeros((n_labels, count), np.bool_)
+    can_win[0] = True
+    for v in range(n):
+        best, at = unary[0, v], 0
+        if not np.isnan(best):  # numpy's argmin and min: the first nan, if any
+            for r in range(1, n_labels):
+                x = unary[r, v]
+                if np.isnan(x):
+                    best, at = x, r
+                    break
+                if x < best:
+                    best, at = x, r
+        chosen[v] = at
+        limit = best + ties[v]
+        for r in range(1, n_labels):
+            if unary[r, v] <= limit:
+                can_win[r, part_of[v]] = True
+    contenders = np.zeros(count, np.int64)
+    for e in range(i.size):
+        contenders[part_of[i[e]]] = 1
+    for k in range(count):
+        if contenders[k]:
+            contenders[k] = can_win[:, k].sum()
+    return part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def binary_parts(
+    unary: F64, i: I64, j: I64, w: F64, part_of: I64, order: I64, edge_order: I64,
+    binary: B, can_win: B,
+) -> tuple[I64, I64, F64, I64, I64, F64]:  # fmt: skip
+    """The nodes of the `binary` parts (in `order`), the one track that meets the background
+    there (the first that `can_win` the node's part), their costs for the background and
+    that track (2, nodes), and the edges between them (in `edge_order`; i, j numbered
+    among those nodes, w)."""
+    track = np.ones(binary.size, np.int64)
+    for k in range(binary.size):
+        if binary[k]:
+            for r in range(1, can_win.shape[0]):
+                if can_win[r, k]:
+                    track[k] = r
+                    break
+    local = np.full(part_of.size, -1, np.int64)
+    m = 0
+    for v in order:
+        if binary[part_of[v]]:
+            local[v] = m
+            m += 1
+    nodes = np.empty(m, np.int64)
+    label = np.empty(m, np.int64)
+    pair = np.empty((2, m))
+    for v in order:
+        if local[v] >= 0:
+            a = local[v]
+            nodes[a] = v
+            label[a] = track[part_of[v]]
+            pair[0, a] = unary[0, v]
+            pair[1, a] = unary[label[a], v]
+    ei = np.empty(i.size, np.int64)
+    ej = np.empty(i.size, np.int64)
+    ew = np.empty(i.size)
+    k = 0
+    for e in edge_order:
+        if binary[part_of[i[e]]]:
+            ei[k], ej[k], ew[k] = local[i[e]], local[j[e]], w[e]
+            k += 1
+    return nodes, label, pair, ei[:k], ej[:k], ew[:k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ascending(keys: F64, lo: float, hi: float) -> I64:
+    """An order that sorts `keys` (within [lo, hi], no nan), ties in any order: a counting
+    sort into as many buckets as keys, then an insertion sort for the few it leaves out
+    of order (keys sharing a bucket)."""
+    n = keys.size
+    scale = n / (hi - lo) if hi > lo else 0.0
+    bounds = np.zeros(n + 1, np.int64)
+    bucket = np.empty(n, np.int64)
+    for i in range(n):
+        b = min(int((keys[i] - lo) * scale), n - 1)
+        bucket[i] = b
+        bounds[b + 1] += 1
+    for b in range(n):
+        bounds[b + 1] += bounds[b]
+    order = np.empty(n, np.int64)
+    for i in range(n):
+        order[bounds[bucket[i]]] = i
+        bounds[bucket[i]] += 1
+    for i in range(1, n):
+        j = order[i]
+        key = keys[j]
+        m = i - 1
+        while m >= 0 and keys[order[m]] > key:
+            order[m + 1] = order[m]
+            m -= 1
+        order[m + 1] = j
+    return order
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -391,13 +756,13 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     axes = np.zeros(starts.size - 1, np.int64)
     for k in range(starts.size - 1):
         cloud = clouds[starts[k] : starts[k + 1]]
-        widest = -1.0
+        widest, lo, hi = -1.0, 0.0, 0.0
         for a in range(3):
             spread = cloud[:, a].max() - cloud[:, a].min()
             if spread > widest:
-                widest = spread
+                widest, lo, hi = spread, cloud[:, a].min(), cloud[:, a].max()
                 axes[k] = a
-        order = np.argsort(cloud[:, axes[k]])
+        order = _ascending(cloud[:, axes[k]], lo, hi)
         for n in range(order.size):
             out[starts[k] + n] = cloud[order[n]]
         # within each slab, along the next widest axis: its boxes are then small both ways
@@ -505,6 +870,52 @@ def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def moving_graph(move: B, i: I64, j: I64, w: F64) -> tuple[I64, I64, I64, I64, F64]:
+    """The nodes that `move` (in order), each node's number among them (−1 for the others)
+    and the edges (i, j, w) with an end among them, in order."""
+    local = np.full(move.size, -1, np.int64)
+    m = 0
+    for p in range(move.size):
+        if move[p]:
+            local[p] = m
+            m += 1
+    nodes = np.empty(m, np.int64)
+    for p in range(move.size):
+        if move[p]:
+            nodes[local[p]] = p
+    ri = np.empty(i.size, np.int64)
+    rj = np.empty(i.size, np.int64)
+    rw = np.empty(i.size)
+    k = 0
+    for e in range(i.size):
+        if move[i[e]] or move[j[e]]:
+            ri[k], rj[k], rw[k] = i[e], j[e], w[e]
+            k += 1
+    return nodes, local, ri[:k], rj[:k], rw[:k]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def cheapest_where(unary: F64, where: B) -> I64:
+    """`np.argmin(unary[:, where], axis=0)` (the first nan, if any) at the nodes `where`,
+    0 elsewhere."""
+    out = np.zeros(unary.shape[1], np.int64)
+    for p in range(unary.shape[1]):
+        if not where[p]:
+            continue
+        best, at = unary[0, p], 0
+        if not np.isnan(best):
+            for label in range(1, unary.shape[0]):
+                x = unary[label, p]
+                if np.isnan(x):
+                    at = label
+                    break
+                if x < best:
+                    best, at = x, label
+        out[p] = at
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def expansion_terms(
     unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64, nodes: I64
 ) -> tuple[F64, F64, I64, I64, F64]:
@@ -591,6 +1002,87 @@ def standing_out(
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noise_fit(intensity: F64, amplitude: F64, valid: B, rng: F64, stride: int) -> tuple[F64, F64]:
+    """`tofcut.tracker.noise.range_noise`'s per-pixel shape of the noise, √max(B, 0) / A
+    (inf where invalid or not finite), and its fit's ratios: along every stride-th row,
+    each second difference of the range over its spread from the shape, where that spread
+    is finite and positive (in row-major order)."""
+    h, w = valid.shape
+    shape = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            b = intensity[v, u]
+            b = b if (b >= 0.0 or b != b) else 0.0
+            x = math.sqrt(b) / amplitude[v, u]
+            shape[v, u] = x if valid[v, u] and np.isfinite(x) else np.inf
+    ratios = np.empty(((h + stride - 1) // stride) * max(w - 2, 0))
+    n = 0
+    for v in range(0, h, stride):
+        for u in range(w - 2):
+            s0, s1, s2 = shape[v, u], shape[v, u + 1], shape[v, u + 2]
+            spread = math.sqrt(s0**2 + 4.0 * s1**2 + s2**2)
+            if np.isfinite(spread) and spread > 0:
+                second = rng[v, u] - 2.0 * rng[v, u + 1] + rng[v, u + 2]
+                ratios[n] = abs(second) / spread
+                n += 1
+    return shape, ratios[:n]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _select(a: F64, lo: int, hi: int, k: int) -> float:
+    """The k-th smallest of a[lo:hi + 1] (no nan), partly reordering it (quickselect)."""
+    while lo < hi:
+        pivot = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < pivot:
+                i += 1
+            while a[j] > pivot:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            return float(a[k])
+    return float(a[k])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def median(values: F64) -> float:
+    """`np.median(values)` of a 1-D array (at least one value): the middle value, or the
+    mean of the middle two, (a + b) / 2; nan if any is."""
+    a = values.copy()
+    n = a.size
+    for x in a:
+        if np.isnan(x):
+            return np.nan
+    upper = _select(a, 0, n - 1, n // 2)
+    if n % 2:
+        return upper
+    lower = float(a[0])  # the largest of those left below the upper middle
+    for x in a[1 : n // 2]:
+        lower = max(lower, x)
+    return (lower + upper) / 2.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def noise_scaled(shape: F64, scale: float, floor: float) -> F64:
+    """`np.maximum(scale * shape, floor)`."""
+    h, w = shape.shape
+    out = np.empty((h, w))
+    for v in range(h):
+        for u in range(w):
+            x = scale * shape[v, u]
+            out[v, u] = x if (x >= floor or x != x) else floor
+    return out
+
+
 def warm_up() -> None:
     """Load (or compile) every kernel for the argument types the tracker calls it with, so
     the first frames of a live run do not stall on it (about a second, once per process)."""
@@ -599,9 +1091,11 @@ def warm_up() -> None:
         return
     f64, i64, yes = np.zeros((2, 2)), np.zeros((2, 2), np.int64), np.ones((2, 2), bool)
     xyz, wt = np.zeros((2, 2, 3)), np.zeros((4, 2, 2))
-    rows, cols = np.nonzero(yes)  # non-contiguous, as np.nonzero gives them
     one = np.zeros(1, np.int64)
-    tie_weights(*tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    tie_weights(tie_exponents(xyz, yes, yes, 1.0), yes, yes, 1.0)
+    free, rows, cols, _, _, _ = free_pixels(yes, f64, f64, xyz, f64, 0.0)  # all four free
+    cost = object_costs(np.zeros((1, 4)), 1.0, 1.0, f64, f64, rows, cols, free)
+    cut_nodes(free, rows, cols, f64, f64, cost, cost)
     free_edges(i64, wt, rows, cols)
     add_fixed_ties(np.zeros((2, 4)), i64, wt, rows, cols)
     add_fixed_ties_at(np.zeros(1), i64, wt, one, one)
@@ -612,14 +1106,21 @@ def warm_up() -> None:
         points, ceiling, points, np.eye(3)[None], cloud, starts, axes, 1.0, 1.0, 1.0,
         np.ones(1), 1.0,
     )  # fmt: skip
-    cut_at_steps(yes, xyz, f64, 1.0, f64)
-    parts(1, one, one)
-    any_by_part(yes, np.zeros(2, np.int64), 1)
+    label_pieces(cut_at_steps(yes, xyz, f64, 1.0, f64))
+    point_stats(points)
+    label_points(np.zeros((2, 2), np.uint16), xyz, one)
+    held_pieces(np.zeros((2, 2), np.uint16), np.zeros((2, 2), np.int32), one, 1, 1)
+    moving_graph(np.ones(1, bool), one, one, np.zeros(1))
+    part_of, order, _, edge_order, _, _, can_win, _ = split_parts(f64, one, one, np.zeros(2))
+    binary_parts(f64, one, one, np.zeros(1), part_of, order, edge_order, can_win[0], can_win)
     unary = np.zeros((2, 3))
     for layout in (unary, np.asfortranarray(unary)):  # a stack, and columns taken out of one
         settled(layout, one, one, np.zeros(1))
+        cheapest_where(layout, np.ones(3, bool))
         expansion_terms(layout, np.zeros(3, np.int64), 1, one, one, np.zeros(1), one, one)
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
+    noise_scaled(noise_fit(f64, f64, yes, f64, 1)[0], 1.0, 1.0)
+    median(np.zeros(2))
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(

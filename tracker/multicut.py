@@ -15,7 +15,7 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.kernels import expansion_terms, settled
+from tofcut.tracker.kernels import cheapest_where, expansion_terms, moving_graph, settled
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -92,11 +92,7 @@ class _Core:
         move = ~settled(problem.unary, problem.i, problem.j, problem.w)
         if start is not None:
             move[:] = True
-        nodes = np.nonzero(move)[0]
-        local = np.full(problem.nodes, -1, np.int64)
-        local[nodes] = np.arange(nodes.size)
-        reach = move[problem.i] | move[problem.j]
-        return cls(nodes, local, problem.i[reach], problem.j[reach], problem.w[reach])
+        return cls(*moving_graph(move, problem.i, problem.j, problem.w))
 
 
 def solve_binary(problem: PottsProblem) -> I64:
@@ -105,9 +101,7 @@ def solve_binary(problem: PottsProblem) -> I64:
         raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
     core = _Core.of(problem, None)
     # one move from all background: what is settled is on its label from the start
-    start = np.zeros(problem.nodes, np.int64)
-    fixed = core.local < 0
-    start[fixed] = np.argmin(problem.unary[:, fixed], axis=0)
+    start = cheapest_where(problem.unary, core.local < 0)
     return _expand(problem, start, 1, core)
 
 

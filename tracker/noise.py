@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut.driver.frames import Frame
+from tofcut.tracker import kernels
 
 F64 = npt.NDArray[np.float64]
 
@@ -24,15 +25,14 @@ FIT_STRIDE = 4
 
 def range_noise(frame: Frame, floor_m: float) -> F64:
     """(H, W) range noise σ of every pixel, metres, at least `floor_m` (inf where invalid).
-    The scale is fitted on every FIT_STRIDE-th row: plenty of pairs, a quarter of the work."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        shape = np.sqrt(np.maximum(frame.intensity, 0.0)) / frame.amplitude
-    shape[~frame.valid | ~np.isfinite(shape)] = np.inf
-    r, s = frame.range[::FIT_STRIDE], shape[::FIT_STRIDE]
-    second = r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]
-    spread = np.sqrt(s[:, :-2] ** 2 + 4.0 * s[:, 1:-1] ** 2 + s[:, 2:] ** 2)
-    usable = np.isfinite(spread) & (spread > 0)
-    if not usable.any():
+    The scale is fitted on every FIT_STRIDE-th row: plenty of pairs, a quarter of the work.
+    The per-pixel arithmetic is compiled (`kernels.noise_fit`; `tofcut.tracker.reference`
+    holds the numpy it replaces)."""
+    shape, ratios = kernels.noise_fit(
+        frame.intensity, frame.amplitude, frame.valid, frame.range, FIT_STRIDE
+    )
+    if not ratios.size:
         return np.where(frame.valid, floor_m, np.inf)
-    scale = MAD_TO_SIGMA * float(np.median(np.abs(second[usable]) / spread[usable]))
-    return np.maximum(scale * shape, floor_m)
+    scale = MAD_TO_SIGMA * float(kernels.median(ratios))
+    noise: F64 = kernels.noise_scaled(shape, scale, floor_m)
+    return noise

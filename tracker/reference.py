@@ -15,12 +15,28 @@ from tofcut.driver.frames import Frame
 from tofcut.tracker.background import BLEND_SIGMAS, BLEND_VARIANCE_SHARE, BackgroundModel, near_any
 from tofcut.tracker.kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]
+
+
+def range_noise(frame: Frame, floor_m: float) -> F64:
+    """`tofcut.tracker.noise.range_noise` in plain numpy."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        shape = np.sqrt(np.maximum(frame.intensity, 0.0)) / frame.amplitude
+    shape[~frame.valid | ~np.isfinite(shape)] = np.inf
+    r, s = frame.range[::FIT_STRIDE], shape[::FIT_STRIDE]
+    second = r[:, :-2] - 2.0 * r[:, 1:-1] + r[:, 2:]
+    spread = np.sqrt(s[:, :-2] ** 2 + 4.0 * s[:, 1:-1] ** 2 + s[:, 2:] ** 2)
+    usable = np.isfinite(spread) & (spread > 0)
+    if not usable.any():
+        return np.where(frame.valid, floor_m, np.inf)
+    scale = MAD_TO_SIGMA * float(np.median(np.abs(second[usable]) / spread[usable]))
+    return np.maximum(scale * shape, floor_m)
 
 
 class ReferenceBackground(BackgroundModel):

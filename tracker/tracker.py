@@ -17,6 +17,7 @@ stays put while the belt runs becomes scenery. Each pixel's range noise
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -171,7 +172,6 @@ class _Candidate:
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
-_NO_NODES = np.zeros(0, np.int64)
 
 
 def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
@@ -201,12 +201,26 @@ def _subsample(points: F64, n: int) -> F64:
     return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
 
 
+@functools.lru_cache(maxsize=4)
+def _floor_cov(floor_m: float) -> F64:
+    """`np.eye(3) * floor_m**2`, made once (read-only)."""
+    out = np.eye(3) * floor_m**2
+    out.flags.writeable = False
+    return out
+
+
+@functools.lru_cache(maxsize=4)
+def _no_spread(shape: tuple[int, int]) -> F64:
+    """`np.zeros(shape)`, made once (never written to)."""
+    return np.zeros(shape)
+
+
 def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
     """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
     object reaches down to the belt, though the camera sees mostly its top: the spread
     along the belt's normal is at least that of a solid from the belt to its top."""
     cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
-    cov = cov + np.eye(3) * floor_m**2
+    cov = cov + _floor_cov(floor_m)
     if belt is not None and len(points):
         n = belt.normal
         top = stats.percentile((points - belt.point) @ n, 90)
@@ -423,41 +437,29 @@ class Tracker:
         # ties only where they can matter: where the pixel's own ties could free it, and
         # around invalid pixels (which a run of them may free)
         near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
-        exps, slot = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
-        wt, total = kernels.tie_weights(np.exp(exps), slot, valid, near, p.smoothness)
-        free = valid & (p.object_cost - u0 <= total)
-        if not free.any():
+        exps = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
+        wt, total = kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
+        free, rows, cols, points, at, ceiling = kernels.free_pixels(
+            valid, u0, total, frame.xyz, noise, p.object_cost
+        )
+        if not rows.size:
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
-        first = np.nonzero(free)
-        ceiling = u0[first] + total[first]
-        distance, floor = self._distances_from(
-            self._tracks, frame.xyz[first], noise[first], ceiling
-        )
-        cost = p.object_cost + p.beta * distance
-        free[first] = cost.min(axis=0) - u0[first] <= total[first]
+        distance, floor = self._distances_from(self._tracks, points, at, ceiling)
+        cost = kernels.object_costs(distance, p.object_cost, p.beta, u0, total, rows, cols, free)
         if not free.any():
             return labels
-        column = np.full((h, w), -1, np.int64)
-        column[first] = np.arange(first[0].size)
         if not valid.all():
             runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
             keep = np.unique(runs[free])
             free |= ~valid & np.isin(runs, keep[keep > 0])
-        n = int(free.sum())
-        index = np.full((h, w), -1, np.int64)
-        index[free] = np.arange(n)
-        where = np.nonzero(free)
-        unary = np.zeros((len(self._tracks) + 1, n))
-        unary[0] = u0[where]
-        known = column[where]  # invalid pixels have no column: no data cost either way
-        measured = known >= 0
-        unary[1:, measured] = cost[:, known[measured]]
+        # invalid pixels have no data cost either way; where a track's surface was not
+        # measured, `least` holds its cost from the shape alone
+        index, *nodes, unary, least, ties = kernels.cut_nodes(
+            free, rows, cols, u0, total, cost, floor
+        )
+        where = (nodes[0], nodes[1])  # the nodes' pixels
         kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
-        # where a track's surface was not measured, its cost from the shape alone
-        least = np.full((len(self._tracks), n), np.nan)
-        least[:, measured] = floor[:, known[measured]]
-        ties = total[where]
 
         def measure(tracks: I64, nodes: I64) -> None:
             # A node never takes a label that costs more than its ties above every label
@@ -517,7 +519,7 @@ class Tracker:
         out: tuple[F64, F64] = kernels.track_distances(
             points, ceiling + CEILING_MARGIN,
             np.array([t.filter.position for t in tracks]).reshape(-1, 3),
-            np.array([np.linalg.inv(t.shape) for t in tracks]).reshape(-1, 3, 3),
+            np.linalg.inv(np.array([t.shape for t in tracks]).reshape(-1, 3, 3)),
             clouds, starts, axes, p.object_cost, p.beta, p.surface_weight, spread,
             spread.max(initial=0.0) * self._reach_per_sigma,
         )  # fmt: skip
@@ -527,11 +529,16 @@ class Tracker:
         """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
         one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
         axis each is sorted along (kept per track while its cloud stays the same)."""
-        for t in tracks:
-            kept = self._sorted.get(t.id)
-            if kept is None or kept[0] is not t.cloud:
-                cloud, axis = kernels.sort_surfaces(t.cloud, np.array([0, len(t.cloud)]))
-                self._sorted[t.id] = (t.cloud, cloud, int(axis[0]))
+        stale = [
+            t for t in tracks if (kept := self._sorted.get(t.id)) is None or kept[0] is not t.cloud
+        ]
+        if stale:  # sorted all in one call
+            bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
+            cloud, axis = kernels.sort_surfaces(np.concatenate([t.cloud for t in stale]), bounds)
+            for k, t in enumerate(stale):
+                self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
+            if len(stale) == len(tracks):  # all of them, in order
+                return cloud, bounds, axis
         starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
         if not tracks:
             return _NO_POINTS, starts, np.zeros(0, np.int64)
@@ -563,10 +570,10 @@ class Tracker:
         `connect_m`, or, given the range noise, than three times the noise of their
         difference where that is more (a seed on a far, dark target); the pixel on the far
         side of such a step is left out."""
-        spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
+        spread2 = _no_spread(frame.shape) if noise is None else 9.0 * noise**2
         body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
-        pieces, _ = ndimage.label(body)
-        return np.asarray(pieces, np.int32)
+        pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
+        return pieces
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
@@ -578,15 +585,19 @@ class Tracker:
         born = self._reconcile(frame, labels)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels, noise) if ready else None
-        boxes = ndimage.find_objects(labels)
+        # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
+        corners, starts, held = kernels.label_points(
+            labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
+        )
         piece_boxes: list[tuple[slice, slice] | None] | None = None
-        for t in self._tracks:
-            box = boxes[t.id - 1] if t.id <= len(boxes) else None
+        for k, t in enumerate(self._tracks):
+            r0, r1, c0, c1 = corners[k].tolist()
+            box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
             mask = labels[box] == t.id if box is not None else _NONE  # within the box
-            n = int(np.count_nonzero(mask))
+            n = int(starts[k + 1] - starts[k])
             if n >= p.min_pixels:
                 assert box is not None
-                pts = frame.xyz[box][mask]
+                pts = held[starts[k] : starts[k + 1]]
                 entering = _on_border(box, labels.shape)
                 if pieces is not None and (entering or self.belt is None):
                     # an object coming into view is bigger than its mask, and one that need
@@ -617,7 +628,7 @@ class Tracker:
                 # without a belt, objects need not be rigid: a person's every view is whole
                 t.measured = usual == 0 or whole or self.belt is None
                 if t.measured:
-                    t.filter.correct(pts.mean(axis=0))
+                    t.filter.correct(kernels.point_stats(pts)[0])  # pts.mean(axis=0)
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
@@ -657,10 +668,7 @@ class Tracker:
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
         for k, t in enumerate(self._tracks):
             row[t.id] = k + 1
-        held = np.bincount(
-            row[labels].ravel() * n_pieces + pieces.ravel(),
-            minlength=(len(self._tracks) + 1) * n_pieces,
-        ).reshape(-1, n_pieces)[1:]
+        held = kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
         held[:, 0] = 0
         size = held.sum(axis=1)
         big = (held >= p.min_pixels) & (held >= p.split_share * size[:, None])
@@ -815,9 +823,9 @@ def _box_of(mask: B) -> tuple[slice, slice]:
 def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
     """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
     bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
+    centroid, lo, hi = kernels.point_stats(pts)
     return Track(
-        t.id, pts.mean(axis=0), t.filter.velocity, pts.min(axis=0), pts.max(axis=0),
-        bbox, len(pts), pts.astype(np.float32),
+        t.id, centroid, t.filter.velocity, lo, hi, bbox, len(pts), pts.astype(np.float32),
     )  # fmt: skip
 
 
@@ -840,43 +848,33 @@ def _solve_by_parts(
     labels and nodes of the parts with more than two labels, before they are cut (their
     costs may be inf where the label cannot win)."""
     n = unary.shape[1]
-    count, part_of = kernels.parts(n, i, j)
-    order = np.argsort(part_of, kind="stable")
-    bounds = np.searchsorted(part_of[order], np.arange(count + 1))
-    edge_part = part_of[i]
-    edge_order = np.argsort(edge_part, kind="stable")
-    edge_bounds = np.searchsorted(edge_part[edge_order], np.arange(count + 1))
+    # chosen: each node's cheapest label, right for every node without edges
+    # contenders: how many labels may win each part an edge joins (0 elsewhere)
+    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders = (
+        kernels.split_parts(unary, i, j, ties)
+    )
     local = np.empty(n, np.int64)
-    chosen: I64 = np.argmin(unary, axis=0)  # right for every node without edges
-    cheapest = unary.min(axis=0)
-    can_win = kernels.any_by_part(unary <= cheapest + ties, part_of, count)
-    can_win[0] = True
-    joined = np.zeros(count, bool)
-    joined[edge_part] = True
-    contenders = can_win.sum(axis=0)
     multi = [
         (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
          np.nonzero(can_win[:, k])[0])
-        for k in np.nonzero(joined & (contenders > 2))[0]
+        for k in np.nonzero(contenders > 2)[0]
     ]  # fmt: skip
     # every label's costs exact wherever a cut of more than two labels may weigh them;
     # with two, a cost left inf is one the track cannot win whatever the neighbours hold
-    measure(
-        np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi] + [_NO_NODES]),
-        np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi] + [_NO_NODES]),
-    )
+    if multi:
+        measure(
+            np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi]),
+            np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi]),
+        )
     for part, edges, labels in multi:
         local[part] = np.arange(part.size)
         problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
         chosen[part] = labels[solve_potts(problem)]
-    binary = joined & (contenders == 2)
-    nodes = order[binary[part_of[order]]]
-    if nodes.size:
+    binary = contenders == 2
+    if binary.any():
         # every part where one track meets the background: one exact cut for them all
-        track = (np.argmax(can_win[1:], axis=0) + 1)[part_of[nodes]]
-        edges = edge_order[binary[edge_part[edge_order]]]
-        local[nodes] = np.arange(nodes.size)
-        pair = np.stack([unary[0, nodes], unary[track, nodes]])
-        problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
-        chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
+        nodes, track, pair, bi, bj, bw = kernels.binary_parts(
+            unary, i, j, w, part_of, order, edge_order, binary, can_win
+        )
+        chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)
     return chosen
