@@ -79,6 +79,10 @@ class TrackerParams:
     """Smaller regions are noise, not objects."""
     connect_m: float = 0.03
     """Neighbours farther apart than this in 3D belong to different surfaces."""
+    joined_m: float = 0.02
+    """A piece beside an object coming into view is more of it where most of the neighbours
+    across their contact are this near in 3D: a box's faces meet edge to edge, and another
+    box beside it stands a step apart."""
     gate_m: float = 0.08
     """A region seen again within this distance (metres) is the same candidate."""
     max_hidden_s: float = 2.0
@@ -119,6 +123,7 @@ class TrackerParams:
             "seed_radius_m": self.seed_radius_m,
             "keep_clear_m": self.keep_clear_m,
             "surface_sigma_m": self.surface_sigma_m,
+            "joined_m": self.joined_m,
         }
         for name, value in positive.items():
             if not value > 0:
@@ -610,7 +615,9 @@ class Tracker:
                     near = np.unique(_beside(pieces, whole_mask, box, seam))
                     if piece_boxes is None:
                         piece_boxes = ndimage.find_objects(pieces)
-                    beside = self._continuing(frame, pts, pieces, near[near > 0], piece_boxes)
+                    beside = self._continuing(
+                        frame, whole_mask, pieces, near[near > 0], piece_boxes
+                    )
                     if beside.size:
                         seen = whole_mask | np.isin(pieces, beside)
                         pieces[seen] = 0
@@ -728,31 +735,24 @@ class Tracker:
     def _continuing(
         self,
         frame: Frame,
-        mask_pts: F64,
+        mask: B,
         pieces: npt.NDArray[np.int32],
         near: npt.NDArray[np.int32],
         piece_boxes: list[tuple[slice, slice] | None],
     ) -> npt.NDArray[np.int32]:
-        """Which pieces beside a track coming into view (seen at `mask_pts`) are more of the
-        same object: on a belt, objects come into view along the belt, so such a piece lies
-        within the track's span across the belt (pieces smaller than MIN_PIECE are noise).
-        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
-        across = None if self.belt is None else np.cross(self.belt.normal, self.belt.direction)
-        if across is not None:
-            span = mask_pts @ across
-            lo, hi = stats.percentile(span, 2), stats.percentile(span, 98)
-        slack = self.params.connect_m
+        """Which pieces beside a track's `mask` are more of the same object (pieces smaller
+        than MIN_PIECE are noise): on a belt, those that go on from the mask's surface
+        without a 3D step (`joined_m`); off it, all (a limb). `piece_boxes` are the pieces'
+        boxes (`ndimage.find_objects`)."""
         keep = []
         for r in near.tolist():
             box = piece_boxes[r - 1]
             assert box is not None
-            mine = pieces[box] == r
-            if np.count_nonzero(mine) < MIN_PIECE:
+            if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
                 continue
-            if across is not None:
-                values = frame.xyz[box][mine] @ across
-                t_lo, t_hi = stats.percentile(values, 5), stats.percentile(values, 95)
-                if not (t_lo >= lo - slack and t_hi <= hi + slack):
+            if self.belt is not None:
+                share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
+                if share < 0.5:
                     continue
             keep.append(r)
         return np.array(keep, np.int32)
@@ -814,6 +814,22 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
     return int(v), int(u)
 
 
+def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float) -> float:
+    """Of the pixel pairs where `a` meets `b` side by side (`b` within `box`), the share
+    whose 3D points are within `step_m` of each other (0 where they do not meet)."""
+    h, w = a.shape
+    rows = slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h))
+    cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
+    pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
+    meet = joined = 0
+    for one, other in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
+        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
+        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
+        meet += gap.size
+        joined += int(np.count_nonzero(gap <= step_m))
+    return joined / meet if meet else 0.0
+
+
 def _box_of(mask: B) -> tuple[slice, slice]:
     """The bounding slices (rows, columns) of a mask that is not empty."""
     rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
@@ -830,12 +846,12 @@ def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
 
 
 def _touching(pieces: npt.NDArray[np.int32], surfaces: I64) -> bool:
-    """Whether the largest of these pieces touches another of them (across the one-pixel
-    seam a 3D step leaves): two objects side by side, not one seen either side of an
-    occluder."""
+    """Whether the largest of these pieces touches another of them (across the seam a 3D
+    step leaves: the far pixel, and up to two flying pixels between, whose range mixes both
+    sides): two objects side by side, not one seen either side of an occluder."""
     sizes = np.bincount(pieces.ravel())
     first = surfaces[np.argmax(sizes[surfaces])]
-    ring = ndimage.binary_dilation(pieces == first, _EIGHT, iterations=2)
+    ring = ndimage.binary_dilation(pieces == first, _EIGHT, iterations=3)
     return bool(np.isin(pieces[ring], surfaces[surfaces != first]).any())
 
 
