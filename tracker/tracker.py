@@ -108,7 +108,9 @@ class TrackerParams:
     """Points kept of each track's surface for that distance (a fixed subsample)."""
     split_share: float = 0.2
     """A track whose mask holds two surfaces (apart by `connect_m` steps), the smaller at
-    least this share of it, holds two objects..."""
+    least this share of it or `split_pixels`, holds two objects..."""
+    split_pixels: int = 100
+    """...(a box coming into view beside a bigger one is a small share of their mask)..."""
     split_frames: int = 3
     """...when it does so this many frames running: the surfaces are then dealt out again."""
 
@@ -134,8 +136,10 @@ class TrackerParams:
             raise ValueError("smoothness, deadband and surface_weight must not be negative")
         if self.background_cap <= self.object_cost:
             raise ValueError("background_cap must exceed object_cost, or nothing is ever found")
-        if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1:
-            raise ValueError("split_share must be in (0, 0.5] and split_frames at least 1")
+        if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1 or self.split_pixels < 1:
+            raise ValueError(
+                "split_share must be in (0, 0.5], split_frames and split_pixels at least 1"
+            )
         if self.confirm_frames < 1 or self.min_pixels < 1:
             raise ValueError("confirm_frames and min_pixels must be at least 1")
         if not 0.0 < self.whole_fraction <= 1.0:
@@ -678,7 +682,9 @@ class Tracker:
         held = kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
         held[:, 0] = 0
         size = held.sum(axis=1)
-        big = (held >= p.min_pixels) & (held >= p.split_share * size[:, None])
+        big = (held >= p.min_pixels) & (
+            held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
+        )
         splitting = []
         for k, t in enumerate(self._tracks):
             two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0])
