@@ -434,12 +434,14 @@ def label_points(
         slot[ids[k]] = k
     boxes = np.zeros((ids.size, 4), np.int64)
     starts = np.zeros(ids.size + 1, np.int64)
+    which = np.full((h, w), -1, np.int64)  # each pixel's id's index, for the second pass
     for v in range(h):
         for u in range(w):
             lab = labels[v, u]
             k = slot[lab] if lab <= top else -1
             if k < 0:
                 continue
+            which[v, u] = k
             if starts[k + 1] == 0:
                 boxes[k, 0], boxes[k, 2] = v, u
             boxes[k, 1] = v + 1
@@ -452,8 +454,7 @@ def label_points(
     fill = starts[:-1].copy()
     for v in range(h):
         for u in range(w):
-            lab = labels[v, u]
-            k = slot[lab] if lab <= top else -1
+            k = which[v, u]
             if k < 0:
                 continue
             points[fill[k], 0], points[fill[k], 1] = xyz[v, u, 0], xyz[v, u, 1]
