@@ -31,6 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut.tracker.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
+from tofcut.tracker.kernels import number_sets, root
 
 F64 = npt.NDArray[np.float64]
 BOOL = npt.NDArray[np.bool_]
@@ -141,14 +142,6 @@ def merged_nodes(cost1: F64, cost0: F64, weights: F64) -> tuple[int, I64]:
 
 
 @numba.njit(cache=True)
-def _root(parent: I64, p: int) -> int:
-    while parent[p] != p:
-        parent[p] = parent[parent[p]]
-        p = parent[p]
-    return p
-
-
-@numba.njit(cache=True)
 def _components(weights: F64, limit: float) -> tuple[int, I64]:
     """Connected components of the pairs whose bound exceeds `limit`, in one raster scan
     (each pixel joins its west or north neighbour's set) with union-find."""
@@ -160,26 +153,17 @@ def _components(weights: F64, limit: float) -> tuple[int, I64]:
             west = u > 0 and _pair_bound(weights, v, u - 1, 0, limit) > limit
             north = v > 0 and _pair_bound(weights, v - 1, u, 1, limit) > limit
             if west and north:
-                a, b = _root(parent, p - 1), _root(parent, p - w)
+                a, b = root(parent, p - 1), root(parent, p - w)
                 parent[p] = min(a, b)
                 parent[max(a, b)] = min(a, b)
             elif west:
-                parent[p] = _root(parent, p - 1)
+                parent[p] = root(parent, p - 1)
             elif north:
-                parent[p] = _root(parent, p - w)
+                parent[p] = root(parent, p - w)
             else:
                 parent[p] = p
-    node = np.empty((h, w), dtype=np.int64)
-    flat = node.reshape(-1)
-    count = 0
-    for p in range(h * w):
-        r = _root(parent, p)
-        if r == p:
-            flat[p] = count
-            count += 1
-        else:
-            flat[p] = flat[r]
-    return count, node
+    node = number_sets(parent, 0, 0).reshape(h, w)
+    return int(node.max()) + 1, node
 
 
 def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
@@ -192,15 +176,20 @@ def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
 def cut_merged(cost1: F64, cost0: F64, weights: F64, count: int, node: I64) -> BOOL:
     """The (H, W) labels of a minimum by graph cut on the nodes of `merged_nodes`."""
     cap1, cap0, heads, tails, caps = _merged_graph(cost1, cost0, weights, count, node)
-    graph = maxflow.Graph[float](count, heads.size)
-    ids = graph.add_nodes(count)
+    labels: BOOL = min_cut(cap1, cap0, heads, tails, caps)[node]
+    return labels
+
+
+def min_cut(source: F64, sink: F64, heads: I64, tails: I64, caps: F64) -> BOOL:
+    """Which nodes end on the sink side of a minimum s-t cut (PyMaxflow), given each node's
+    capacities from the source and to the sink and undirected edges heads–tails."""
+    graph = maxflow.Graph[float](source.size, heads.size)
+    ids = graph.add_nodes(source.size)
     if heads.size:
         graph.add_edges(heads, tails, caps, caps)
-    graph.add_grid_tedges(ids, cap1, cap0)
+    graph.add_grid_tedges(ids, source, sink)
     graph.maxflow()
-    target = np.asarray(graph.get_grid_segments(ids), dtype=bool)
-    labels: BOOL = target[node]
-    return labels
+    return np.asarray(graph.get_grid_segments(ids), dtype=bool)
 
 
 @numba.njit(cache=True)

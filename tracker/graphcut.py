@@ -47,7 +47,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.contraction import cut_merged, merged_nodes
+from tofcut.tracker.contraction import cut_merged, merged_nodes, min_cut
 from tofcut.tracker.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
 
 F64 = npt.NDArray[np.float64]
@@ -132,13 +132,7 @@ def solve_reduced(problem: Problem) -> Solution:
         return solve_reference(problem)
     m = pixels.size
     if m:
-        graph = maxflow.Graph[float](m, heads.size)
-        ids = graph.add_nodes(m)
-        if heads.size:
-            graph.add_edges(heads, tails, caps, caps)
-        graph.add_grid_tedges(ids, cost1, cost0)
-        graph.maxflow()
-        labels.reshape(-1)[pixels] = graph.get_grid_segments(ids)
+        labels.reshape(-1)[pixels] = min_cut(cost1, cost0, heads, tails, caps)
     return Solution(labels, m)
 
 

@@ -512,12 +512,28 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _root(parent: npt.NDArray[np.int32], a: int) -> int:
+def root(parent: npt.NDArray[np.int32] | I64, a: int) -> int:
     """The root of `a` in a union-find forest, halving the path on the way."""
     while parent[a] != a:
         parent[a] = parent[parent[a]]
         a = parent[a]
     return a
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def number_sets(parent: npt.NDArray[np.int32] | I64, first: int, base: int) -> I64:
+    """Each element from `first` on numbered by its set, from `base` up in the order of each
+    set's first element (every set's root is its smallest element)."""
+    out = np.zeros(parent.size, np.int64)
+    count = 0
+    for k in range(first, parent.size):
+        r = root(parent, k)
+        if r == k:
+            out[k] = base + count
+            count += 1
+        else:
+            out[k] = out[r]
+    return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -527,7 +543,7 @@ def label_pieces(body: B) -> npt.NDArray[np.int32]:
     h, w = body.shape
     out = np.zeros((h, w), np.int32)
     parent = np.zeros(h * w // 2 + 2, np.int32)
-    n = 0
+    n = 0  # labels so far
     for v in range(h):
         for u in range(w):
             if not body[v, u]:
@@ -541,18 +557,10 @@ def label_pieces(body: B) -> npt.NDArray[np.int32]:
             elif up == 0 or left == 0 or up == left:
                 out[v, u] = max(up, left)
             else:
-                a, b = _root(parent, up), _root(parent, left)
+                a, b = root(parent, up), root(parent, left)
                 parent[max(a, b)] = min(a, b)  # a piece's root is its first label
                 out[v, u] = left
-    final = np.zeros(n + 1, np.int32)
-    count = 0
-    for k in range(1, n + 1):
-        r = _root(parent, k)
-        if r == k:
-            count += 1
-            final[k] = count
-        else:
-            final[k] = final[r]
+    final = number_sets(parent[: n + 1], 1, 1)
     for v in range(h):
         for u in range(w):
             out[v, u] = final[out[v, u]]
@@ -578,29 +586,13 @@ def held_pieces(
 def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
     """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
     numbered in the order of each part's first node (as scipy's connected_components)."""
-    root = np.arange(n)
+    parent = np.arange(n)
     for e in range(i.size):
-        a, b = i[e], j[e]
-        while root[a] != a:
-            root[a] = root[root[a]]
-            a = root[a]
-        while root[b] != b:
-            root[b] = root[root[b]]
-            b = root[b]
+        a, b = root(parent, i[e]), root(parent, j[e])
         if a != b:
-            root[max(a, b)] = min(a, b)
-    part_of = np.empty(n, np.int64)
-    count = 0
-    for v in range(n):
-        r = v
-        while root[r] != r:
-            r = root[r]
-        if r == v:
-            part_of[v] = count
-            count += 1
-        else:
-            part_of[v] = part_of[r]
-    return count, part_of
+            parent[max(a, b)] = min(a, b)
+    part_of = number_sets(parent, 0, 0)
+    return (int(part_of.max()) + 1 if n else 0), part_of
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
