@@ -38,7 +38,12 @@ def test_mypy_finds_nothing(tmp_path):
 def test_the_wheel_installs_only_the_tofcut_package(tmp_path):
     uv = os.environ.get("UV") or shutil.which("uv")  # `uv run` says where it is in $UV
     assert uv, "run the tests through uv (scripts/uv run pytest)"
-    result = _run(uv, "build", "--wheel", "--no-build-isolation", "-o", str(tmp_path))
+    # The build runs in this environment (its setuptools), whichever interpreter uv itself
+    # was installed under (pip puts it under the system Python, whose setuptools is older).
+    result = _run(
+        uv, "build", "--wheel", "--no-build-isolation", "--python", sys.executable,
+        "-o", str(tmp_path),
+    )  # fmt: skip
     assert result.returncode == 0, result.stdout + result.stderr
     (wheel,) = tmp_path.glob("tofcut-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
