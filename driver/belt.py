@@ -8,8 +8,10 @@ camera frames (`Frame.host_time_ns`), so frames and belt readings can be matched
 from __future__ import annotations
 
 import bisect
+import math
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -17,6 +19,9 @@ import numpy.typing as npt
 from tofcut.driver.errors import ConfigError
 
 F64 = npt.NDArray[np.float64]
+
+MAX_BELT_SPEED_MPS = 10.0
+"""No conveyor runs faster than this; a larger speed is damage, not a reading."""
 
 
 @dataclass(frozen=True)
@@ -37,41 +42,59 @@ class BeltReading:
 
 @dataclass(frozen=True, eq=False)
 class BeltGeometry:
-    """Where the belt is in camera coordinates (metres): the frame rejects are measured in.
+    """The belt's top surface in camera coordinates (metres): the one belt type of the package.
 
-    `origin` is the zero of along-belt positions: the point of the belt's top surface on the
+    The tracker puts the empty belt under objects with it, the rejects measure positions along
+    it. `origin` is the zero of along-belt positions: the point of the top surface on the
     camera's optical axis, so "the diverter is 1.5 m downstream of the camera" means 1.5 m
     along `direction` from there.
     """
 
+    point: F64
+    """(3,) a point of the top surface: on the belt's centre line where `width_m` is known."""
     direction: F64
     """(3,) unit vector of travel, in the belt plane."""
     normal: F64
-    """(3,) unit normal of the belt's top surface, pointing up (away from the belt)."""
-    origin: F64
-    """(3,) the belt's top surface on the optical axis."""
+    """(3,) unit normal of the top surface, pointing up (towards the camera)."""
+    width_m: float | None = None
+    """The belt's width; None where it is not known (the belt then has no sides)."""
 
-    @classmethod
-    def from_plane(cls, direction: F64, normal: F64, point: F64) -> BeltGeometry:
-        """From any point of the belt's top surface; `direction` is projected into the plane."""
-        n = np.asarray(normal, dtype=np.float64)
-        d = np.asarray(direction, dtype=np.float64)
-        p = np.asarray(point, dtype=np.float64)
-        if n.shape != (3,) or d.shape != (3,) or p.shape != (3,):
-            raise ConfigError("belt direction, normal and point must each have 3 components")
-        n_len = float(np.linalg.norm(n))
-        if not n_len > 0:
+    def __post_init__(self) -> None:
+        for name in ("point", "direction", "normal"):
+            v = np.array(getattr(self, name), dtype=np.float64)
+            if v.shape != (3,) or not np.isfinite(v).all():
+                raise ConfigError(f"the belt's {name} must be three finite numbers")
+            object.__setattr__(self, name, v)
+        n_len = float(np.linalg.norm(self.normal))
+        if not n_len > 1e-9:
             raise ConfigError("the belt's normal must not be zero")
-        n = n / n_len
-        d = d - float(d @ n) * n
+        n = self.normal / n_len
+        if float(n @ self.point) > 0:
+            n = -n  # up is towards the camera, which sees the surface from its front
+        d = self.direction - float(self.direction @ n) * n
         d_len = float(np.linalg.norm(d))
-        if not d_len > 1e-6:
-            raise ConfigError("the belt's direction of travel must not be along its normal")
-        d = d / d_len
+        if not d_len > 1e-6 * max(1.0, float(np.linalg.norm(self.direction))):
+            raise ConfigError(
+                "the belt's direction of travel must not be along its normal, nor zero"
+            )
         if abs(n[2]) < 1e-6:
             raise ConfigError("the camera's optical axis is parallel to the belt")
-        origin = np.array([0.0, 0.0, float(n @ p) / n[2]])
-        return cls(d, n, origin)
+        if self.width_m is not None and not (math.isfinite(self.width_m) and self.width_m > 0):
+            raise ConfigError(f"the belt's width must be a positive number, not {self.width_m}")
+        object.__setattr__(self, "normal", n)
+        object.__setattr__(self, "direction", d / d_len)
+        object.__setattr__(self, "origin", np.array([0.0, 0.0, float(n @ self.point) / n[2]]))
+
+    origin: F64 = field(init=False, repr=False)
+    """(3,) the top surface on the optical axis."""
+
+    @classmethod
+    def from_plane(
+        cls, direction: F64, normal: F64, point: F64, width_m: float | None = None
+    ) -> BeltGeometry:
+        """From any point of the top surface (its centre line, when a width is given);
+        `direction` is projected into the plane."""
+        return cls(point, direction, normal, width_m)
 
     def along(self, points: F64) -> F64:
         """Position along the belt (m downstream of the origin) of (..., 3) points."""
@@ -85,6 +108,85 @@ class BeltGeometry:
     def height(self, points: F64) -> F64:
         """Height above the belt's top surface (m) of (..., 3) points."""
         return np.asarray((points - self.origin) @ self.normal, dtype=np.float64)
+
+    def over_belt(self, points: F64) -> npt.NDArray[np.bool_]:
+        """Whether points (..., 3) lie within the belt's width, seen along its normal (all
+        do where the width is not known)."""
+        if self.width_m is None:
+            return np.ones(np.shape(points)[:-1], bool)
+        side = np.cross(self.normal, self.direction)
+        with np.errstate(invalid="ignore"):
+            return np.abs((points - self.point) @ side) <= self.width_m / 2
+
+    def range_along(self, rays: F64) -> F64:
+        """Distance along each unit ray (..., 3) to the belt's top surface; inf where the ray
+        misses the belt's width or runs away from it."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (self.point @ self.normal) / (rays @ self.normal)
+            hit = self.over_belt(rays * t[..., None])
+            return np.where((t > 0) & hit, t, np.inf)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The geometry as plain numbers (capture metadata, a conveyor map's `[belt]`)."""
+        out: dict[str, Any] = {
+            "point": self.point.tolist(),
+            "direction": self.direction.tolist(),
+            "normal": self.normal.tolist(),
+        }
+        if self.width_m is not None:
+            out["width_m"] = self.width_m
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class KnownBelt:
+    """What a run knows of its belt: where it is, its speed when that is known, and from where."""
+
+    geometry: BeltGeometry
+    speed_mps: float | None = None
+    """Belt speed along `geometry.direction`; None where only the geometry is known."""
+    source: str = "given"
+    """Where it came from: "map", "scene", "capture", "found", "given" (the Python API)."""
+
+    def __post_init__(self) -> None:
+        if self.speed_mps is not None and not (
+            math.isfinite(self.speed_mps) and abs(self.speed_mps) <= MAX_BELT_SPEED_MPS
+        ):
+            raise ConfigError(
+                f"the belt's speed must be a number within ±{MAX_BELT_SPEED_MPS} m/s, "
+                f"not {self.speed_mps}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """As capture metadata carries it: the geometry's numbers and `speed_mps`."""
+        out = self.geometry.to_dict()
+        if self.speed_mps is not None:
+            out["speed_mps"] = self.speed_mps
+        return out
+
+    @classmethod
+    def from_dict(cls, doc: object, source: str) -> KnownBelt:
+        """From capture metadata or a map's `[belt]` table; ConfigError if any value is off."""
+        if not isinstance(doc, dict):
+            raise ConfigError("the belt must be a table of point, direction, normal")
+        unknown = set(doc) - {"point", "direction", "normal", "width_m", "speed_mps"}
+        if unknown:
+            raise ConfigError(f"the belt has unknown keys: {', '.join(sorted(unknown))}")
+        try:
+            vectors = [np.array(doc[k], dtype=np.float64) for k in ("point", "direction", "normal")]
+        except KeyError as exc:
+            raise ConfigError(f"the belt has no {exc.args[0]}") from None
+        except (TypeError, ValueError):
+            raise ConfigError("the belt's point, direction and normal must be numbers") from None
+        width, speed = doc.get("width_m"), doc.get("speed_mps")
+        for name, value in (("width_m", width), ("speed_mps", speed)):
+            if value is not None and (
+                isinstance(value, bool) or not isinstance(value, int | float)
+            ):
+                raise ConfigError(f"the belt's {name} must be a number, not {value!r}")
+        point, direction, normal = vectors
+        geometry = BeltGeometry(point, direction, normal, None if width is None else float(width))
+        return cls(geometry, None if speed is None else float(speed), source)
 
 
 def unwrap_count(previous: int | None, previous_raw: int | None, raw: int, bits: int = 32) -> int:

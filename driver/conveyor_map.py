@@ -30,7 +30,8 @@ belt and diverter are. Defaults, and the TOML file that overrides them::
     [belt]                       # where the belt is, in camera coordinates (x right, y down,
     direction = [1.0, 0.0, 0.0]  #   z forward), metres; the emulator knows its own
     normal = [0.0, -0.8, -0.6]   # up, away from the belt
-    point = [0.0, 0.4, 1.2]      # any point of the belt's top surface
+    point = [0.0, 0.4, 1.2]      # a point of the belt's top surface (on its centre line if
+    width_m = 0.6                #   the width is given; the width is optional)
     diverter_m = 1.5             # the diverter, downstream of the camera's optical axis
 """
 
@@ -225,14 +226,18 @@ def parse_conveyor_config(doc: dict[str, Any]) -> ConveyorConfig:
     belt_table = doc.get("belt", {})
     if not isinstance(belt_table, dict):
         raise ConfigError("[belt] must be a table")
-    _check_keys(belt_table, {"direction", "normal", "point", "diverter_m"}, "belt")
+    _check_keys(belt_table, {"direction", "normal", "point", "width_m", "diverter_m"}, "belt")
     geometry = None
     given = [k for k in ("direction", "normal", "point") if k in belt_table]
     if given:
         if len(given) != 3:
             raise ConfigError("belt: give direction, normal and point together")
+        width = belt_table.get("width_m")
+        direction, normal, point = (
+            _vector(belt_table[k], f"belt.{k}") for k in ("direction", "normal", "point")
+        )
         geometry = BeltGeometry.from_plane(
-            *(_vector(belt_table[k], f"belt.{k}") for k in ("direction", "normal", "point"))
+            direction, normal, point, None if width is None else _number(width, "belt.width_m")
         )
     diverter_m = belt_table.get("diverter_m")
     if diverter_m is not None:

@@ -200,7 +200,8 @@ def for_scene(
 
 
 def belt_geometry(scene: Scene) -> BeltGeometry:
-    """The scene's belt in camera coordinates (world +x travel, top at z = `top_z`)."""
+    """The scene's belt in camera coordinates (world +x travel, top at z = `top_z`, centred on
+    y = 0)."""
     if scene.belt is None:
         raise ValueError(f"scene {scene.name!r} has no belt")
     pose = scene.camera_from_world
@@ -208,4 +209,5 @@ def belt_geometry(scene: Scene) -> BeltGeometry:
         pose.rotation @ np.array([1.0, 0.0, 0.0]),
         pose.rotation @ np.array([0.0, 0.0, 1.0]),
         pose.apply(np.array([0.0, 0.0, scene.belt.top_z])),
+        scene.belt.width_m,
     )

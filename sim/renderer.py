@@ -18,8 +18,10 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from tofcut.driver.belt import KnownBelt
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.protocol import TAPS, mod_freq_hz
+from tofcut.sim.conveyor import belt_geometry
 from tofcut.sim.lens import RayGrid, make_calibration, sphere_window
 from tofcut.sim.raycast import Hits, Placed, cast_all, cast_samples, cast_windows, depth_edges
 from tofcut.sim.scene import CameraSettings, Scene, body_pose, part_poses
@@ -39,18 +41,6 @@ class ObjectInfo:
     id: int
     name: str
     target: bool
-
-
-@dataclass(frozen=True, eq=False)
-class BeltInfo:
-    """The belt as the camera sees it (camera coordinates): a point on the middle of its top
-    surface, its unit direction of travel and unit upward normal, speed and width."""
-
-    direction: F64
-    speed_mps: float
-    width_m: float
-    point: F64
-    normal: F64
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,16 +104,11 @@ class SceneSource:
         return [ObjectInfo(o.id, o.name, o.target) for o in self.scene.objects]
 
     @property
-    def belt(self) -> BeltInfo | None:
-        """Direction (camera frame) and speed of the belt, or None where there is none."""
-        b = self.scene.belt
-        if b is None:
+    def belt(self) -> KnownBelt | None:
+        """The belt in camera coordinates, with its speed, or None where there is none."""
+        if self.scene.belt is None:
             return None
-        cam = self.scene.camera_from_world
-        d = cam.rotation @ np.array([1.0, 0.0, 0.0])
-        up = cam.rotation @ np.array([0.0, 0.0, 1.0])
-        point = cam.rotation @ np.array([0.0, 0.0, b.top_z]) + cam.translation
-        return BeltInfo(d, b.speed_mps, b.width_m, point, up)
+        return KnownBelt(belt_geometry(self.scene), self.scene.belt.speed_mps, "scene")
 
     @cached_property
     def target(self) -> TargetInfo | None:

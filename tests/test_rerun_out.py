@@ -116,7 +116,7 @@ def emulated_run(frames: int = FRAMES, fps: float = FPS) -> tuple[Calibration, n
             )
             run.append((tracked, status))
         calibration = cam.calibration
-    return calibration, source.belt.direction, run
+    return calibration, source.belt.geometry.direction, run
 
 
 @pytest.fixture(scope="module")

@@ -115,7 +115,7 @@ def test_boxes_ride_the_belt_enter_and_leave_and_the_scene_loops():
     assert belt.speed_mps == 0.25
     a, b = src.truth_at(1.0), src.truth_at(2.0)
     moved = b.object(1).pose[:3, 3] - a.object(1).pose[:3, 3]
-    assert np.allclose(moved, belt.direction * belt.speed_mps)
+    assert np.allclose(moved, belt.geometry.direction * belt.speed_mps)
     seen = np.array(
         [[o.pixels for o in src.truth_at(t).objects] for t in np.arange(0.0, 16.0, 1.0)]
     )

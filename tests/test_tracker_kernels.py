@@ -10,7 +10,6 @@ from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tracker import kernels, multicut
-from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -23,9 +22,8 @@ def _kernels():
 
 
 def _same_run(source, frames):
-    b = source.belt
-    belt = BeltGeometry(b.point, b.direction, b.normal, b.width_m)
-    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    belt = source.belt.geometry
+    prior = VelocityPrior(belt.direction * source.belt.speed_mps, np.eye(3) * 0.02**2, True)
     fast, reference = Tracker(belt=belt), ReferenceTracker(belt=belt)
     # the tracker warms its kernels up: a live run must not stall on loading one for new
     # argument types mid-stream

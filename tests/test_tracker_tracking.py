@@ -13,7 +13,6 @@ from tofcut.sim import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tools.cli import main
 from tofcut.tools.pipeline import LiveFeed
-from tofcut.tracker.belt import BeltGeometry
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.tracker import Tracker, TrackerParams
 
@@ -64,7 +63,7 @@ def test_bad_tracker_parameters_are_refused_with_the_reason():
 def _conveyor_run(frames):
     src = open_scene("conveyor", 0)
     b = src.belt
-    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    tracker = Tracker(belt=b.geometry)
     out = []
     for i in range(frames):
         frame, truth = decode(src, scene_exposure(src, i * 0.02, i))
@@ -98,8 +97,8 @@ def _score_run(name, frames):
 
     src = open_scene(name, 0)
     b = src.belt
-    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
-    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    tracker = Tracker(belt=b.geometry)
+    prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
     period = src.settings.frame_period * 1e-4
     tracks, masks, truths = {}, {}, []
     for i in range(frames):
@@ -244,10 +243,10 @@ def _pair_entering(side_by_side: bool):
 def test_two_touching_boxes_coming_into_view_together_get_a_track_each(side_by_side):
     src = _pair_entering(side_by_side)
     b = src.belt
-    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
+    tracker = Tracker(belt=b.geometry)
     from tofcut.tracker.belt_prior import VelocityPrior
 
-    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
     period = src.settings.frame_period * 1e-4
     for i in range(200):
         frame, truth = decode(src, scene_exposure(src, i * period, i))
@@ -292,8 +291,8 @@ def test_what_stays_put_while_the_belt_runs_becomes_scenery():
 
     src = open_scene("paper-fig3", 0)
     b = src.belt
-    tracker = Tracker(belt=BeltGeometry(b.point, b.direction, b.normal, b.width_m))
-    prior = VelocityPrior(b.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
+    tracker = Tracker(belt=b.geometry)
+    prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
     period = src.settings.frame_period * 1e-4
     ended = []
     for i in range(200):

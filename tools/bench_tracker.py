@@ -41,6 +41,7 @@ class BeltTracker:
     def __init__(self, source: SceneSource) -> None:
         belt = belt_of(scene_metadata(source))
         assert belt is not None
+        assert belt.speed_mps is not None
         self.tracker = Tracker(belt=belt.geometry)
         self.direction = belt.geometry.direction
         self.speed_mps = belt.speed_mps

@@ -158,7 +158,7 @@ def _soak(
         VelocityPrior(
             belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
         )
-        if belt
+        if belt and belt.speed_mps is not None
         else None
     )
     faults = camera_faults(opened) | (conveyor_faults(line) if line else {})

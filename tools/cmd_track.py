@@ -169,7 +169,7 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         VelocityPrior(
             belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
         )
-        if belt
+        if belt and belt.speed_mps is not None
         else None
     )
     if not live and (args.conveyor or args.conveyor_emulator):

@@ -11,11 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from tofcut.driver.belt import KnownBelt
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
-from tofcut.driver.errors import TofcutError
+from tofcut.driver.errors import ConfigError, TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.device import EmulatedCamera
@@ -24,7 +23,6 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError
 from tofcut.sim.source import TapSource
 from tofcut.sim.usb_backend import EmulatedBackend
-from tofcut.tracker.belt import BeltGeometry
 
 TEST_PATTERN = "test-pattern"
 DEFAULT_SCENE = "conveyor"
@@ -81,45 +79,25 @@ class Opened:
     """The emulated camera's bus (to unplug and replug it: the soak's faults)."""
 
 
-@dataclass(frozen=True, eq=False)
-class SceneBelt:
-    """The belt of an emulated scene, as a capture's metadata carries it."""
-
-    geometry: BeltGeometry
-    speed_mps: float
-
-
 def scene_metadata(source: TapSource) -> dict[str, Any]:
     """The installation facts of an emulated scene: its name, belt and marked target."""
     if not isinstance(source, SceneSource):
         return {}
     meta: dict[str, Any] = {"scene": source.name}
-    belt = source.belt
-    if belt is not None:
-        meta["belt"] = {
-            "point": belt.point.tolist(),
-            "direction": belt.direction.tolist(),
-            "normal": belt.normal.tolist(),
-            "width_m": belt.width_m,
-            "speed_mps": belt.speed_mps,
-        }
+    if source.belt is not None:
+        meta["belt"] = source.belt.to_dict()
     if source.target is not None:
         meta["target_pixel"] = list(source.target.seed_pixel)
     return meta
 
 
-def belt_of(meta: dict[str, Any]) -> SceneBelt | None:
-    """The belt recorded in scene metadata, or None."""
-    b = meta.get("belt")
-    if not isinstance(b, dict):
+def belt_of(meta: dict[str, Any]) -> KnownBelt | None:
+    """The belt recorded in a capture's or scene's metadata, or None."""
+    if "belt" not in meta:
         return None
     try:
-        geometry = BeltGeometry(
-            np.array(b["point"], float), np.array(b["direction"], float),
-            np.array(b["normal"], float), float(b["width_m"]),
-        )  # fmt: skip
-        return SceneBelt(geometry, float(b["speed_mps"]))
-    except (KeyError, TypeError, ValueError) as exc:
+        return KnownBelt.from_dict(meta["belt"], "capture")
+    except ConfigError as exc:
         raise SourceError(f"the belt in the capture's metadata is unusable: {exc}") from None
 
 

@@ -16,9 +16,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels
-from tofcut.tracker.belt import BeltGeometry
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
