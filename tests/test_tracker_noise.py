@@ -9,7 +9,7 @@ from scipy import ndimage
 from tofcut.sim import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tracker import Tracker
+from tofcut.tracker.tracker import Tracker, TrackerParams
 
 
 def _frames(name: str, count: int):
@@ -45,7 +45,7 @@ def test_a_noisy_scene_does_not_stand_out_of_its_own_scenery():
     # noise floor keeps the far wall of the person scene from speckling (without it, 16%
     # of the scenery away from the person stood out in every frame)
     src, run = _frames("person", 30)
-    tracker = Tracker()
+    tracker = Tracker(TrackerParams(rigid=False))
     tracker.add_target(pixel=src.target.seed_pixel)
     speckle = []
     for frame, truth in run:

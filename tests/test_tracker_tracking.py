@@ -267,7 +267,7 @@ def test_a_seeded_person_is_followed_under_one_id():
     # the paper's Experiment 3: a walking person, seeded once, at 3 m and 15 MHz (range noise
     # about 3 cm), held by one track from the first frame with issue 5's mean IoU of 0.8
     src = open_scene("person", 0)
-    tracker = Tracker()
+    tracker = Tracker(TrackerParams(rigid=False))
     tracker.add_target(pixel=src.target.seed_pixel)
     period = src.settings.frame_period * 1e-4
     ious = []

@@ -38,7 +38,7 @@ from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
 from tofcut.tools.sources import Opened, SourceError, belt_of, open_source, scene_target
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
-from tofcut.tracker.tracker import Tracker
+from tofcut.tracker.tracker import Tracker, TrackerParams
 from tofcut.tracker.tracks import TrackedFrame
 
 BELT_SPEED_SIGMA = 0.02
@@ -72,6 +72,11 @@ def add_tracking_options(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--target-point", type=_triple, action="append", default=[], metavar="X,Y,Z",
         help="follow a known target from this 3D point, camera coordinates (repeatable)",
+    )  # fmt: skip
+    g.add_argument(
+        "--deformable", action="store_true",
+        help="the targets may bend (a person): every view is measured and what stands out "
+        "beside a target is part of it (default: rigid objects, as on a conveyor)",
     )  # fmt: skip
     g.add_argument(
         "--scene-target", action="store_true",
@@ -154,7 +159,9 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         device.capture.metadata if isinstance(device, CaptureReader) else opened.metadata
     )
     belt = belt_of(meta)
-    tracker = Tracker(belt=belt.geometry if belt else None)
+    tracker = Tracker(
+        TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
+    )
     targets = list(args.target_pixel)
     if args.scene_target:
         seed = scene_target(meta)

@@ -178,7 +178,7 @@ class ReferenceTracker(Tracker):
         bg = self.background
         assert bg is not None
         body = bg.standing_out(frame) & (labels == 0)
-        return self._pieces(frame, body, noise if self.belt is None else None)
+        return self._pieces(frame, body, noise if not self.params.rigid else None)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         h, w = frame.shape

@@ -113,6 +113,11 @@ class TrackerParams:
     """...(a box coming into view beside a bigger one is a small share of their mask)..."""
     split_frames: int = 3
     """...when it does so this many frames running: the surfaces are then dealt out again."""
+    rigid: bool = True
+    """Whether the targets are rigid (boxes and parts on a line: a view is measured only when
+    it shows the whole object, and touching surfaces a step apart are different objects) or
+    may bend (a walking person: every view is measured, and what stands out beside it is a
+    limb). A property of the targets, chosen by the user: not inferred from the belt."""
 
     def __post_init__(self) -> None:
         positive = {
@@ -569,10 +574,10 @@ class Tracker:
             bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
             q.min_height_m,
         )  # fmt: skip
-        # on a belt, boxes of different heights touch: a step of `connect_m` parts them
-        # whatever the noise; elsewhere (a person metres away) a step within the noise
-        # does not break a limb into specks
-        return self._pieces(frame, body, noise if self.belt is None else None)
+        # rigid boxes of different heights touch: a step of `connect_m` parts them
+        # whatever the noise; a body that bends (a person metres away) is not broken into
+        # specks by a step within the noise
+        return self._pieces(frame, body, noise if not self.params.rigid else None)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
@@ -608,14 +613,14 @@ class Tracker:
                 assert box is not None
                 pts = held[starts[k] : starts[k + 1]]
                 entering = _on_border(box, labels.shape)
-                if pieces is not None and (entering or self.belt is None):
+                if pieces is not None and (entering or not p.rigid):
                     # an object coming into view is bigger than its mask, and one that need
-                    # not be rigid (no belt: a person) may have moved a limb where its
+                    # not be rigid (a person) may have moved a limb where its
                     # prediction did not reach: what stands out right beside it is the rest
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
                     # across a 3D step, what stands out lies past the seam the step leaves
-                    seam = 1 if self.belt is not None else 2
+                    seam = 1 if self.params.rigid else 2
                     near = np.unique(_beside(pieces, whole_mask, box, seam))
                     if piece_boxes is None:
                         piece_boxes = ndimage.find_objects(pieces)
@@ -636,8 +641,8 @@ class Tracker:
                 whole = p.whole_fraction * usual <= m and (
                     entering or m * p.whole_fraction <= usual
                 )
-                # without a belt, objects need not be rigid: a person's every view is whole
-                t.measured = usual == 0 or whole or self.belt is None
+                # a target that bends (a person) shows all of itself in every view
+                t.measured = usual == 0 or whole or not p.rigid
                 if t.measured:
                     t.filter.correct(kernels.point_stats(pts)[0])  # pts.mean(axis=0)
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
@@ -672,8 +677,8 @@ class Tracker:
         line): each surface goes whole to one of the tracks holding it, most pixels kept in
         place; a surface left over is a new track. Changes `labels`; the new tracks' ids."""
         p = self.params
-        if self.belt is None or not self._tracks:
-            return []  # objects on a belt are rigid; a person's limbs are not other people
+        if not p.rigid or not self._tracks:
+            return []  # a person's limbs are not other people
         pieces = self._pieces(frame, labels > 0)
         n_pieces = int(pieces.max()) + 1
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
@@ -747,16 +752,16 @@ class Tracker:
         piece_boxes: list[tuple[slice, slice] | None],
     ) -> npt.NDArray[np.int32]:
         """Which pieces beside a track's `mask` are more of the same object (pieces smaller
-        than MIN_PIECE are noise): on a belt, those that go on from the mask's surface
-        without a 3D step (`joined_m`); off it, all (a limb). `piece_boxes` are the pieces'
-        boxes (`ndimage.find_objects`)."""
+        than MIN_PIECE are noise): for rigid targets, those that go on from the mask's
+        surface without a 3D step (`joined_m`); for targets that bend, all (a limb).
+        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
         keep = []
         for r in near.tolist():
             box = piece_boxes[r - 1]
             assert box is not None
             if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
                 continue
-            if self.belt is not None:
+            if self.params.rigid:
                 share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
                 if share < 0.5:
                     continue
