@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tofcut.driver.belt import BeltGeometry
@@ -29,6 +30,13 @@ frames' spread alone can make a pixel look many times quieter than it is."""
 BLEND_SIGMAS = 2.5
 BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
+REGION_SIDE = 5
+"""Side (pixels) of the neighbourhood whose mean height decides where one pixel cannot."""
+REGION_SIGMAS = 6.0
+"""A neighbourhood stands out where its mean nearness is this many times its own noise..."""
+REGION_HEIGHT_SHARE = 0.5
+"""...and at least this share of `min_height_sigmas` of its pixels' noise: half the height
+of the lowest object to be found, so that its pixels, not the belt's round it, pass."""
 
 
 @dataclass(frozen=True)
@@ -45,6 +53,10 @@ class BackgroundParams:
     """A pixel stands out when it is nearer than the model by this many sigmas..."""
     min_height_m: float = 0.02
     """...and by at least this much (thin things lying flat are part of the belt)."""
+    min_height_sigmas: float = 2.5
+    """The lowest object to be found stands this many of its pixels' range noise sigmas
+    above the scenery: found by the mean height of its neighbourhoods (`standing_regions`),
+    where no single pixel of it stands out by `noise_factor` sigmas."""
     reveal_frames: int = 5
     """Frames in a row a pixel must read farther than the model before the model moves back."""
 
@@ -55,6 +67,8 @@ class BackgroundParams:
             raise ValueError(f"learn_frames must be at least 1, got {self.learn_frames}")
         if not 0.0 < self.rate <= 1.0:
             raise ValueError(f"rate must be in (0, 1], got {self.rate}")
+        if self.min_height_sigmas <= 0:
+            raise ValueError(f"min_height_sigmas must be > 0, got {self.min_height_sigmas}")
         if self.min_sigma_m <= 0 or self.noise_factor <= 0 or self.min_height_m < 0:
             raise ValueError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
 
@@ -160,6 +174,26 @@ class BackgroundModel:
             noise, p.noise_factor, p.rate, p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS,
             BLEND_VARIANCE_SHARE,
         )  # fmt: skip
+
+
+def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: BackgroundParams) -> B:
+    """Pixels whose `REGION_SIDE` neighbourhood stands out of the scenery as a whole: its mean
+    nearness (over the `usable` pixels in it, at least half of them) is `REGION_SIGMAS` times
+    that mean's own noise and half the lowest object's height (`min_height_sigmas`). A low
+    object in loud noise, none of whose pixels stands out alone, is found this way."""
+    w = usable.astype(np.float64)
+    nearer = np.where(usable, model - seen, 0.0)
+    var = np.where(usable, sigma * sigma, 0.0)
+    side = REGION_SIDE
+    count = ndimage.uniform_filter(w, side, mode="constant") * side * side
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = ndimage.uniform_filter(nearer, side, mode="constant") * side * side / count
+        mean_var = ndimage.uniform_filter(var, side, mode="constant") * side * side / count
+        enough = count >= side * side / 2
+        low = REGION_HEIGHT_SHARE * params.min_height_sigmas * np.sqrt(mean_var)
+        out = enough & (mean > REGION_SIGMAS * np.sqrt(mean_var / count)) & (mean > low)
+        out &= mean > params.min_height_m
+    return out & usable
 
 
 def near_any(xyz: F64, where: B, points: F64, reach: float) -> B:

@@ -12,7 +12,13 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from tofcut.driver.frames import Frame
-from tofcut.tracker.background import BLEND_SIGMAS, BLEND_VARIANCE_SHARE, BackgroundModel, near_any
+from tofcut.tracker.background import (
+    BLEND_SIGMAS,
+    BLEND_VARIANCE_SHARE,
+    BackgroundModel,
+    near_any,
+    standing_regions,
+)
 from tofcut.tracker.kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
@@ -177,8 +183,10 @@ class ReferenceTracker(Tracker):
     ) -> npt.NDArray[np.int32]:
         bg = self.background
         assert bg is not None
+        usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
-        return self._pieces(frame, body, noise if not self.params.rigid else None)
+        body |= standing_regions(bg.range, bg.sigma, usable, frame.range, bg.params)
+        return self._pieces(frame, body, noise)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         h, w = frame.shape

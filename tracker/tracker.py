@@ -30,7 +30,7 @@ from scipy.optimize import linear_sum_assignment
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels, stats
-from tofcut.tracker.background import BackgroundModel, BackgroundParams
+from tofcut.tracker.background import BackgroundModel, BackgroundParams, standing_regions
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -574,10 +574,13 @@ class Tracker:
             bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
             q.min_height_m,
         )  # fmt: skip
-        # rigid boxes of different heights touch: a step of `connect_m` parts them
-        # whatever the noise; a body that bends (a person metres away) is not broken into
-        # specks by a step within the noise
-        return self._pieces(frame, body, noise if not self.params.rigid else None)
+        body |= standing_regions(
+            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
+        )
+        # a step of `connect_m` parts touching objects of different heights, or three
+        # times the noise where that is more: a surface in loud noise is not broken into
+        # specks by steps within the noise
+        return self._pieces(frame, body, noise)
 
     def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
         """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
