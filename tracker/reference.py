@@ -188,11 +188,13 @@ class ReferenceTracker(Tracker):
         body |= standing_regions(bg.range, bg.sigma, usable, frame.range, bg.params)
         return self._pieces(frame, body, noise)
 
-    def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
+    def _pieces(
+        self, frame: Frame, body: B, noise: F64, step_noise: bool = True
+    ) -> npt.NDArray[np.int32]:
         h, w = frame.shape
         body = body.copy()
         xyz = frame.xyz
-        spread2 = np.zeros(frame.shape) if noise is None else 9.0 * noise**2
+        spread2 = 9.0 * noise**2 if step_noise else np.zeros(frame.shape)
         for dv, du in ((0, 1), (1, 0)):
             a, b = _shifted(h, w, dv, du)
             allowed = np.maximum(self.params.connect_m**2, spread2[a] + spread2[b])
@@ -202,7 +204,7 @@ class ReferenceTracker(Tracker):
             body[a] &= ~far_a
             body[b] &= ~far_b
         pieces, _ = ndimage.label(body)
-        return np.asarray(pieces, np.int32)
+        return self._by_tops(frame, body, np.asarray(pieces, np.int32), noise)
 
 
 def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:

@@ -35,6 +35,7 @@ from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import range_noise
+from tofcut.tracker.tops import facing_up, split_by_tops
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 F64 = npt.NDArray[np.float64]
@@ -582,15 +583,27 @@ class Tracker:
         # specks by steps within the noise
         return self._pieces(frame, body, noise)
 
-    def _pieces(self, frame: Frame, body: B, noise: F64 | None = None) -> npt.NDArray[np.int32]:
+    def _pieces(
+        self, frame: Frame, body: B, noise: F64, step_noise: bool = True
+    ) -> npt.NDArray[np.int32]:
         """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
         `connect_m`, or, given the range noise, than three times the noise of their
         difference where that is more (a seed on a far, dark target); the pixel on the far
         side of such a step is left out."""
-        spread2 = _no_spread(frame.shape) if noise is None else 9.0 * noise**2
+        spread2 = 9.0 * noise**2 if step_noise else _no_spread(frame.shape)
         body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
         pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
-        return pieces
+        return self._by_tops(frame, body, pieces, noise)
+
+    def _by_tops(self, frame: Frame, body: B, pieces: I32, noise: F64) -> I32:
+        """Rigid objects on a known belt: a piece holding two tops is two objects
+        (`tofcut.tracker.tops`); others as they are."""
+        if not self.params.rigid or self.belt is None or pieces.max() < 1:
+            return pieces
+        up = facing_up(body, frame.xyz, noise, self.belt)
+        if up is None:
+            return pieces
+        return split_by_tops(pieces, up, frame.xyz, noise, self.belt, self.params.min_pixels)
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
@@ -599,7 +612,7 @@ class Tracker:
         p = self.params
         ended: list[int] = []
         keep: list[_Live] = []
-        born = self._reconcile(frame, labels)
+        born = self._reconcile(frame, labels, noise)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels, noise) if ready else None
         # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
@@ -674,7 +687,7 @@ class Tracker:
             born += self._detect(frame, pieces, labels, noise)
         return born, ended
 
-    def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16]) -> list[int]:
+    def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
         """Deal the surfaces out again where a track has held two for `split_frames` frames
         (two objects that came into view together, taken as one, or split along the wrong
         line): each surface goes whole to one of the tracks holding it, most pixels kept in
@@ -682,7 +695,7 @@ class Tracker:
         p = self.params
         if not p.rigid or not self._tracks:
             return []  # a person's limbs are not other people
-        pieces = self._pieces(frame, labels > 0)
+        pieces = self._pieces(frame, labels > 0, noise, step_noise=False)
         n_pieces = int(pieces.max()) + 1
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
         for k, t in enumerate(self._tracks):

@@ -1,0 +1,60 @@
+"""Touching objects on a belt told apart by their tops (`tofcut.tracker.tops`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.renderer import SceneSource
+from tofcut.sim.scene_file import parse_scene
+from tofcut.tracker import kernels
+from tofcut.tracker.noise import range_noise
+from tofcut.tracker.tops import facing_up, split_by_tops
+
+
+def _pair(first_h: float, second_h: float, side_by_side: bool) -> SceneSource:
+    """Two boxes pressed together on a belt, seen from above and to one side."""
+    a, b = ([0.0, -0.1], [0.0, 0.1]) if side_by_side else ([-0.1, 0.0], [0.1, 0.0])
+    doc = {
+        "name": "pair",
+        "duration_s": 10.0,
+        "camera": {"position": [-0.5, -0.4, 1.3], "look_at": [0.0, 0.0, 0.0], "fps": 50},
+        "belt": {"width": 0.6, "speed": 0.0, "albedo": 0.45},
+        "object": [
+            {"name": "a", "shape": "box", "size": [0.2, 0.2, first_h], "albedo": 0.45,
+             "position": [*a, first_h / 2], "motion": "static"},
+            {"name": "b", "shape": "box", "size": [0.2, 0.2, second_h], "albedo": 0.45,
+             "position": [*b, second_h / 2], "motion": "static"},
+        ],
+    }  # fmt: skip
+    return SceneSource(parse_scene(doc), seed=3)
+
+
+def _split(source: SceneSource) -> tuple[np.ndarray, np.ndarray]:
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    body = (truth.labels > 0) & frame.valid
+    noise = range_noise(frame, 0.004)
+    pieces = kernels.label_pieces(body)
+    belt = source.belt
+    assert belt is not None
+    up = facing_up(body, frame.xyz, noise, belt.geometry)
+    assert up is not None
+    return split_by_tops(pieces, up, frame.xyz, noise, belt.geometry, 30), truth.labels
+
+
+@pytest.mark.parametrize("side_by_side", [True, False])
+def test_touching_boxes_of_different_heights_are_two_pieces(side_by_side):
+    pieces, truth = _split(_pair(0.12, 0.18, side_by_side))
+    assert pieces.max() == 2
+    for obj in (1, 2):
+        # each piece is mostly one box
+        owner = np.bincount(pieces[truth == obj]).argmax()
+        assert owner > 0
+        assert np.mean(pieces[truth == obj] == owner) > 0.8
+
+
+def test_flush_boxes_of_one_height_stay_one_piece():
+    # range cannot tell them apart: no guess
+    pieces, _ = _split(_pair(0.15, 0.15, True))
+    assert pieces.max() == 1
