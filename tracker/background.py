@@ -30,6 +30,8 @@ frames' spread alone can make a pixel look many times quieter than it is."""
 BLEND_SIGMAS = 2.5
 BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
+MEDIAN_NOISE_SHARE = 0.418
+"""Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
 REGION_SIDE = 5
 """Side (pixels) of the neighbourhood whose mean height decides where one pixel cannot."""
 REGION_SIGMAS = 6.0
@@ -156,6 +158,25 @@ class BackgroundModel:
         with np.errstate(invalid="ignore"):
             z = (self.range - frame.range) / self.sigma
         return np.where(frame.valid & self.known, z, 0.0)
+
+    def weighed_nearness(self, frame: Frame) -> tuple[F64, F64]:
+        """What the background's cost weighs: each pixel's nearness (metres in front of the
+        scenery, 0 where unknown or invalid) and its noise; where the noise is so loud that
+        the lowest object (`min_height_sigmas`) would not stand out pixel by pixel, the
+        median of the 3×3 neighbourhood instead (a step's edge stays where it is), with
+        that median's smaller noise."""
+        usable = frame.valid & self.known
+        with np.errstate(invalid="ignore"):
+            nearer = np.where(usable, self.range - frame.range, 0.0)
+        p = self.params
+        loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
+        if not loud.any():
+            return nearer, self.sigma
+        median = ndimage.median_filter(nearer, size=3, mode="nearest")
+        return (
+            np.where(loud, median, nearer),
+            np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
+        )
 
     def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther

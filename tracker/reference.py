@@ -174,7 +174,8 @@ class ReferenceTracker(Tracker):
         assert bg is not None
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        z = np.maximum(bg.nearness(frame) - p.deadband, 0.0)
+        nearer, sigma = bg.weighed_nearness(frame)
+        z = np.maximum(nearer / sigma - p.deadband, 0.0)
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
 

@@ -425,8 +425,9 @@ class Tracker:
         assert bg is not None
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
+        nearer, sigma = bg.weighed_nearness(frame)
         cost: F64 = kernels.background_cost(
-            bg.range, bg.sigma, bg.known, frame.range, frame.valid, p.deadband,
+            bg.range, sigma, bg.known, bg.range - nearer, frame.valid, p.deadband,
             p.background_cap, p.unknown_cost,
         )  # fmt: skip
         return cost
