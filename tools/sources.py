@@ -91,14 +91,16 @@ def scene_metadata(source: TapSource) -> dict[str, Any]:
     return meta
 
 
-def belt_of(meta: dict[str, Any]) -> KnownBelt | None:
-    """The belt recorded in a capture's or scene's metadata, or None."""
+def belt_of(meta: dict[str, Any], source: str = "capture") -> KnownBelt | None:
+    """The belt in a capture's (`source="capture"`) or a scene's (`"scene"`) metadata, or
+    None; every value checked (`SourceError`, one line, if one is off)."""
     if "belt" not in meta:
         return None
     try:
-        return KnownBelt.from_dict(meta["belt"], "capture")
+        return KnownBelt.from_dict(meta["belt"], source)
     except ConfigError as exc:
-        raise SourceError(f"the belt in the capture's metadata is unusable: {exc}") from None
+        whose = "capture's" if source == "capture" else "scene's"
+        raise SourceError(f"the belt in the {whose} metadata is unusable: {exc}") from None
 
 
 def scene_target(meta: dict[str, Any]) -> tuple[int, int] | None:
