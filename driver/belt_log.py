@@ -29,7 +29,7 @@ import os
 import threading
 from collections import deque
 from collections.abc import Generator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
@@ -319,8 +319,10 @@ class ReplayedLink:
     travel interpolated between the readings around that time, the speed and flags of the
     reading before it; nothing before the first reading, nor more than the header's
     `max_extrapolation_s` after the reading before it (the live link was silent then, and
-    gave no prior). Times must come in order, as frames do: the log is read as they go.
-    Frames are placed in time by the same clock as live (`frame_time_ns`).
+    gave no prior); across a longer silence, travel extrapolated from the reading before it
+    (live, the reading after it had not come yet). Times must come in order, as frames do:
+    the log is read as they go. Frames are placed in time by the same clock as live
+    (`frame_time_ns`).
     """
 
     def __init__(self, path: str | os.PathLike[str], capacity: int = HISTORY) -> None:
@@ -373,6 +375,11 @@ class ReplayedLink:
         before = self._history.before(time_ns)
         if before is None or time_ns - before.time_ns > self._max_gap_ns:
             return None
+        after = self._history.latest()
+        if after is not None and after.time_ns - before.time_ns > self._max_gap_ns:
+            # the link fell silent after `before`: live, the next reading was not there yet
+            moved = before.speed_mps * (time_ns - before.time_ns) * 1e-9
+            return replace(before, time_ns=time_ns, distance_m=before.distance_m + moved)
         return self._history.at(time_ns)
 
     def belts_until(self, time_ns: int) -> list[LoggedBelt]:
