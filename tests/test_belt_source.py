@@ -4,6 +4,7 @@ start and mid-run, through the command line."""
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import struct
@@ -24,9 +25,12 @@ from tofcut.tools.belt_source import (
     BeltResolution,
     disagreement,
     resolve_belt,
+    resolve_run_belt,
 )
 from tofcut.tools.cli import main
+from tofcut.tools.conveyor_options import add_conveyor_options, open_conveyor
 from tofcut.tools.run_belt import RunBelt
+from tofcut.tools.sources import SourceSpec, open_source
 from tofcut.tracker.reject_rule import RejectRule
 from tofcut.tracker.rejects import RejectScheduler
 from tofcut.tracker.tracker import Tracker
@@ -268,7 +272,6 @@ def test_live_rejects_start_without_a_map_when_the_scene_knows_the_belt(
         lines.append(line)
         return line
 
-    open_conveyor = cmd_track.open_conveyor
     monkeypatch.setattr(cmd_track, "open_conveyor", keep)
     argv = ["live", "emulator:conveyor", "--fast", "--frames", "6", "--reject", "height > 0.5",
             "--diverter-distance", "1.0", "--save", str(tmp_path / "r.rrd")]  # fmt: skip
@@ -289,9 +292,12 @@ def test_live_rejects_start_without_a_map_when_the_scene_knows_the_belt(
 
 def test_the_maps_belt_reaches_the_rejects_too(tmp_path, capsys, monkeypatch, spy):
     lines = []
-    open_conveyor = cmd_track.open_conveyor
-    monkeypatch.setattr(cmd_track, "open_conveyor", lambda *a, **k: lines.append(
-        open_conveyor(*a, **k)) or lines[-1])  # fmt: skip
+
+    def keep(*a, **k):
+        lines.append(open_conveyor(*a, **k))
+        return lines[-1]
+
+    monkeypatch.setattr(cmd_track, "open_conveyor", keep)
     line_map = write_map(tmp_path / "line.toml", moved(SCENE_BELT, "map", lift_m=0.02),
                          "diverter_m = 1.2\n")  # fmt: skip
     argv = ["live", "emulator:conveyor", "--fast", "--frames", "4", "--conveyor-emulator",
@@ -404,3 +410,40 @@ def test_the_pipeline_takes_a_belt_found_mid_run_without_restarting(
     assert [prior is None for _, _, prior in spy] == [True, True, True, False, False, False]
     out = capsys.readouterr().out
     assert "belt: found during the run (from frame 3, refined 2 times); speed 0.250 m/s" in out
+
+
+@pytest.mark.parametrize("seed", [[999, 5], [3, -1], [True, 4], [1.5, 2], "12,3"])
+def test_a_target_pixel_off_the_image_is_a_one_line_error(capture, tmp_path, capsys, seed):
+    path = tmp_path / "bad.tofcap"
+    path.write_bytes(capture.read_bytes())
+    rewrite_metadata(path, lambda m: m.update(target_pixel=seed))
+    assert main(["track", str(path), "--scene-target", "--save", str(tmp_path / "r.rrd")]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "target_pixel is not a pixel of the image" in err
+
+
+def test_a_belt_given_through_the_python_api_reaches_the_rejects_and_the_prior():
+    """The API's own source wins over the scene's: `resolve_run_belt(..., given=...)`."""
+    parser = argparse.ArgumentParser()
+    add_conveyor_options(parser)
+    args = parser.parse_args(["--conveyor-emulator", "--reject", "height > 0.1",
+                              "--diverter-distance", "1.0"])  # fmt: skip
+    given = moved(SCENE_BELT, "given", turn_deg=1.0, speed=0.25)
+    opened = open_source(SourceSpec("emulator", "conveyor"), realtime=False)
+    try:
+        resolution = resolve_run_belt(args, opened, given=given)
+        assert resolution.belt is given
+        assert resolution.warnings == ()  # within a few degrees of the scene's
+        with open_conveyor(args, opened, resolution=resolution) as line:
+            assert line.rejects.belt is given.geometry
+            tracker = SimpleNamespace(belt=given.geometry)
+            run_belt = RunBelt(resolution, tracker, line=line)
+            reading = line.client.wait_for(lambda r: True, 5.0)
+            now = SimpleNamespace(sequence=0, host_time_ns=reading.time_ns)
+            line.exposures = SimpleNamespace(host_time_ns=lambda f: f.host_time_ns)
+            prior = run_belt.at_frame(now)
+            np.testing.assert_allclose(prior.mean, 0.25 * given.geometry.direction, atol=1e-12)
+            assert run_belt.describe().startswith("belt: given through the Python API")
+    finally:
+        opened.device.close()
