@@ -1,12 +1,13 @@
-"""The conveyor options of `tofcut live`, and the link they open: the controller (real, or
-emulated on a pseudo-terminal), the belt readings, and the reject rule.
+"""The conveyor options of `tofcut live`, `track`, `record` and `soak`, and the link they
+open: the controller (real, or emulated on a pseudo-terminal), the belt readings, and the
+reject rule. The belt's geometry is the run's, resolved once (`tools.belt_source`).
 
     add_conveyor_options(parser)
     ...
     line = open_conveyor(args, opened)      # None without --conveyor / --conveyor-emulator
     with line or contextlib.nullcontext():
         for frame in camera.frames():
-            prior = line.velocity_prior(frame)  # for the tracker
+            prior = line.velocity_prior(frame)  # for the tracker (or tools.run_belt.RunBelt)
             tracked = ...
             line.observe(tracked)               # rejects
 """
