@@ -22,6 +22,8 @@ F64 = npt.NDArray[np.float64]
 
 MAX_BELT_SPEED_MPS = 10.0
 """No conveyor runs faster than this; a larger speed is damage, not a reading."""
+MAX_BELT_RANGE_M = 100.0
+"""A belt read back from a file lies within this distance of the camera (and is no wider)."""
 
 
 @dataclass(frozen=True)
@@ -172,21 +174,48 @@ class KnownBelt:
         unknown = set(doc) - {"point", "direction", "normal", "width_m", "speed_mps"}
         if unknown:
             raise ConfigError(f"the belt has unknown keys: {', '.join(sorted(unknown))}")
-        try:
-            vectors = [np.array(doc[k], dtype=np.float64) for k in ("point", "direction", "normal")]
-        except KeyError as exc:
-            raise ConfigError(f"the belt has no {exc.args[0]}") from None
-        except (TypeError, ValueError):
-            raise ConfigError("the belt's point, direction and normal must be numbers") from None
+        point, direction, normal = (_vector(doc, k) for k in ("point", "direction", "normal"))
+        if float(np.abs(point).max()) > MAX_BELT_RANGE_M:
+            raise ConfigError(f"the belt's point is more than {MAX_BELT_RANGE_M:g} m away")
+        for name, v in (("direction", direction), ("normal", normal)):
+            if not 1e-9 < float(np.abs(v).max()) < 1e9:
+                raise ConfigError(f"the belt's {name} must not be zero (nor absurdly long)")
         width, speed = doc.get("width_m"), doc.get("speed_mps")
         for name, value in (("width_m", width), ("speed_mps", speed)):
             if value is not None and (
                 isinstance(value, bool) or not isinstance(value, int | float)
             ):
-                raise ConfigError(f"the belt's {name} must be a number, not {value!r}")
-        point, direction, normal = vectors
+                raise ConfigError(f"the belt's {name} must be a number, not {_short(value)}")
+        if width is not None and not width <= MAX_BELT_RANGE_M:
+            raise ConfigError(
+                f"the belt's width must be a positive number up to {MAX_BELT_RANGE_M:g} m, "
+                f"not {width}"
+            )
         geometry = BeltGeometry(point, direction, normal, None if width is None else float(width))
         return cls(geometry, None if speed is None else float(speed), source)
+
+
+def _vector(doc: dict[str, Any], key: str) -> F64:
+    """Three finite real numbers (JSON or TOML: no booleans, no strings) from a belt table."""
+    if key not in doc:
+        raise ConfigError(f"the belt has no {key}")
+    value = doc[key]
+    if not (
+        isinstance(value, list | tuple)
+        and len(value) == 3
+        and all(isinstance(x, int | float) and not isinstance(x, bool) for x in value)
+    ):
+        raise ConfigError(f"the belt's {key} must be a list of three numbers, not {_short(value)}")
+    v = np.array(value, dtype=np.float64)
+    if not np.isfinite(v).all():
+        raise ConfigError(f"the belt's {key} must be three finite numbers, not {_short(value)}")
+    return v
+
+
+def _short(value: object, limit: int = 60) -> str:
+    """A value for a one-line message: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def unwrap_count(previous: int | None, previous_raw: int | None, raw: int, bits: int = 32) -> int:
@@ -227,6 +256,11 @@ class BeltHistory:
 
     def latest(self) -> BeltReading | None:
         return self._readings[-1] if self._readings else None
+
+    def before(self, time_ns: int) -> BeltReading | None:
+        """The last reading taken at or before `time_ns`, as read (None if there is none)."""
+        i = bisect.bisect_right(self._readings, time_ns, key=lambda r: r.time_ns)
+        return self._readings[i - 1] if i else None
 
     def at(self, time_ns: int) -> BeltReading | None:
         """The belt's state at a host time: None before the first reading or too long after

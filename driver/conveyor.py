@@ -95,6 +95,8 @@ class ConveyorClient:
         self.link = link
         self.registers = registers or RegisterMap()
         self._plan = self.registers.read_plan()
+        self.max_extrapolation_s = max_extrapolation_s
+        """How long past its last reading the link still answers `reading_at` (see BeltHistory)."""
         self._max_command_delay_s = max_command_delay_s
         self._clock_ns = clock_ns
         self._modbus = self._make_modbus()

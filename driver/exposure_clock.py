@@ -40,6 +40,12 @@ class ExposureClock:
         self._index = 0
         self._last: tuple[int, int] | None = None
 
+    @property
+    def offset_ns(self) -> int | None:
+        """The fixed host − device offset it was given, or None where it estimates one: what a
+        conveyor log keeps so that a replay places frames exactly as the live run did."""
+        return self._fixed
+
     def host_time_ns(self, frame: Frame) -> int:
         """The host time of the middle of `frame`'s exposure."""
         mid_ns = exposure_mid_ns(frame)

@@ -22,9 +22,8 @@ from tofcut.sim.crowd import crowd_source
 from tofcut.sim.renderer import SceneSource
 from tofcut.tools.bench_frames import device_info, wire_run
 from tofcut.tools.bench_timing import CLOCK, percentiles_ms
-from tofcut.tools.cmd_track import BELT_SPEED_SIGMA
 from tofcut.tools.sources import belt_of, scene_metadata
-from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.belt_prior import known_speed_prior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -45,9 +44,7 @@ class BeltTracker:
         self.tracker = Tracker(belt=belt.geometry)
         self.direction = belt.geometry.direction
         self.speed_mps = belt.speed_mps
-        self.prior = VelocityPrior(
-            belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
-        )
+        self.prior = known_speed_prior(belt)
         self.optics = Optics.from_calibration(source.calibration)
         self.parser = FrameParser(device_info(source))
 

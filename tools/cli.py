@@ -52,7 +52,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.func(args) or 0)
     except TofcutError as exc:
         print(f"tofcut: error: {exc}", file=sys.stderr)
-        return 1
+        return int(getattr(exc, "exit_code", 1))  # 2: something needed was not given
     except KeyboardInterrupt:
         print("tofcut: interrupted", file=sys.stderr)
         return 130

@@ -18,19 +18,19 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
 from tofcut.driver.camera import Camera
 from tofcut.driver.events import DeviceEvent
 from tofcut.sim.drill import FAULTS
 from tofcut.sim.modbus_server import Fault
-from tofcut.tools.cmd_track import BELT_SPEED_SIGMA, ConveyorOutput, RerunOutput
+from tofcut.tools.belt_source import BeltResolution, resolve_run_belt
+from tofcut.tools.cmd_track import ConveyorOutput, RerunOutput
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.losses import describe_losses, event_level
 from tofcut.tools.options import add_camera_options, config_from_args
 from tofcut.tools.pipeline import EventRelay, LiveFeed, Output, RunSummary, run
 from tofcut.tools.rerun_sink import RerunSink
 from tofcut.tools.rerun_target import RerunTarget
+from tofcut.tools.run_belt import RunBelt
 from tofcut.tools.soak import (
     HOST_OVERFLOW,
     UNEXPLAINED,
@@ -40,8 +40,7 @@ from tofcut.tools.soak import (
     MemoryGrowth,
     MemorySampler,
 )
-from tofcut.tools.sources import Opened, SourceError, SourceSpec, belt_of, open_source
-from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tools.sources import Opened, SourceError, SourceSpec, open_source
 from tofcut.tracker.tracker import Tracker
 
 MAX_GROWTH_MIB = 10.0
@@ -134,9 +133,10 @@ def soak(args: argparse.Namespace) -> int:
         asked = config_from_args(args, camera.config)
         if asked is not None:
             camera.configure(asked)
-        line = open_conveyor(args, opened)
+        resolution = resolve_run_belt(args, opened)
+        line = open_conveyor(args, opened, resolution=resolution)
         try:
-            return _soak(args, rng, opened, camera, relay, line)
+            return _soak(args, rng, opened, camera, relay, line, resolution)
         finally:
             if line is not None:
                 line.close()
@@ -151,16 +151,11 @@ def _soak(
     camera: Camera,
     relay: EventRelay,
     line: ConveyorLine | None,
+    resolution: BeltResolution,
 ) -> int:
-    belt = belt_of(opened.metadata)
+    belt = resolution.belt
     tracker = Tracker(belt=belt.geometry if belt else None)
-    fixed = (
-        VelocityPrior(
-            belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
-        )
-        if belt and belt.speed_mps is not None
-        else None
-    )
+    run_belt = RunBelt(resolution, tracker, line=line)
     faults = camera_faults(opened) | (conveyor_faults(line) if line else {})
     seconds = args.minutes * 60.0
     mode = "fast (virtual clock)" if args.fast else "real time"
@@ -196,7 +191,7 @@ def _soak(
             summary = run(
                 feed, camera.demodulate, tracker, outputs, stats=lambda: camera.stats,
                 dropped=lambda: feed.dropped,
-                prior=line.velocity_prior if line else lambda frame: fixed,
+                prior=run_belt.at_frame,
                 should_stop=lambda s: time.monotonic() - started >= seconds, events=relay,
             )  # fmt: skip
         finally:
@@ -208,6 +203,7 @@ def _soak(
             size = path.stat().st_size if path.exists() else 0
             where = f"kept at {path}" if args.save else "deleted: --save FILE.rrd keeps it"
             print(f"{sink.summary()} ({size / MIB:.1f} MiB; {where})")
+    print(run_belt.describe())
     return report(args, camera, summary, audit, injector, device_events, grown, line)
 
 

@@ -10,15 +10,18 @@ import argparse
 import functools
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from tofcut.driver.belt_log import ReplayedLink, belt_log_path
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.demod import demodulate
 from tofcut.driver.events import DeviceEvent
+from tofcut.driver.frames import Frame
+from tofcut.tools.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.losses import describe_losses, event_level
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
@@ -35,14 +38,12 @@ from tofcut.tools.pipeline import (
 from tofcut.tools.progress import Progress
 from tofcut.tools.rerun_sink import RerunSink
 from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
-from tofcut.tools.sources import Opened, SourceError, belt_of, open_source, scene_target
+from tofcut.tools.run_belt import RunBelt
+from tofcut.tools.sources import Opened, SourceError, open_source, scene_target
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker, TrackerParams
 from tofcut.tracker.tracks import TrackedFrame
-
-BELT_SPEED_SIGMA = 0.02
-"""How sure the tracker is of the belt's speed as the scene or capture gives it, m/s."""
 
 
 def _triple(text: str) -> tuple[float, float, float]:
@@ -155,10 +156,11 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
 
 def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay) -> int:
     device = opened.device
-    meta: dict[str, Any] = (
-        device.capture.metadata if isinstance(device, CaptureReader) else opened.metadata
-    )
-    belt = belt_of(meta)
+    meta, _ = run_metadata(opened)
+    if not live and (args.conveyor or args.conveyor_emulator):
+        raise SourceError("the conveyor options need a live camera, not a capture")
+    resolution = resolve_run_belt(args, opened)
+    belt = resolution.belt
     tracker = Tracker(
         TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
     )
@@ -172,29 +174,33 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         tracker.add_target(pixel=pixel)
     for point in args.target_point:
         tracker.add_target(point=np.array(point))
-    fixed = (
-        VelocityPrior(
-            belt.geometry.direction * belt.speed_mps, np.eye(3) * BELT_SPEED_SIGMA**2, True
-        )
-        if belt and belt.speed_mps is not None
-        else None
-    )
-    if not live and (args.conveyor or args.conveyor_emulator):
-        raise SourceError("the conveyor options need a live camera, not a capture")
-    line = open_conveyor(args, opened, lambda e: sink.event(e.describe(), "INFO"))
+    replay = _replay(device)
     try:
-        direction = belt.geometry.direction if belt else line.direction if line else None
+        line = open_conveyor(
+            args, opened, lambda e: sink.event(e.describe(), "INFO"), resolution=resolution
+        )
+    except BaseException:
+        if replay is not None:
+            replay.close()
+        raise
+    try:
+        run_belt = RunBelt(resolution, tracker, line=line, replay=replay)
+        direction = belt.geometry.direction if belt else None
         sink = RerunSink.from_args(
             args, device.calibration, direction, name=f"tofcut {args.source}"
         )
         events.start([lambda e: sink.event(str(e), event_level(e)), _print_event])
-        summary = _run(args, live, device, tracker, sink, events, line, fixed)
+        summary = _run(args, live, device, tracker, sink, events, line, run_belt.at_frame)
+        if replay is not None:
+            replay.finish()
     except KeyboardInterrupt:
         print("stopped by Ctrl-C; the outputs hold every frame tracked", file=sys.stderr)
         return 130
     finally:
         if line is not None:
             line.close()
+        if replay is not None:
+            replay.close()
     fps = summary.frames / summary.elapsed_s if summary.elapsed_s > 0 else 0.0
     # with the recording on stdout (`--stdout`), what is said to the user goes to stderr
     say = functools.partial(print, file=sys.stderr if args.stdout else sys.stdout)
@@ -207,6 +213,9 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         say(text)
     say(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
     say(sink.summary())
+    say(run_belt.describe())
+    if replay is not None:
+        say(replay.summary())
     if line is not None:
         say(line.summary())
     wait_while_serving(args)
@@ -215,6 +224,14 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         if path:
             say(f"wrote {path}")
     return 0
+
+
+def _replay(device: Camera | CaptureReader) -> ReplayedLink | None:
+    """A capture's conveyor log, replayed in place of the link; None without one."""
+    if not isinstance(device, CaptureReader):
+        return None
+    path = belt_log_path(device.path)
+    return ReplayedLink(path) if path.exists() else None
 
 
 def _print_event(event: DeviceEvent) -> None:
@@ -233,7 +250,7 @@ def _run(
     sink: RerunSink,
     events: EventRelay,
     line: ConveyorLine | None,
-    fixed: VelocityPrior | None,
+    prior: Callable[[Frame], VelocityPrior | None],
 ) -> RunSummary:
     """The pipeline on a capture (progress bar) or a camera (reader thread, status line)."""
     outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
@@ -252,7 +269,6 @@ def _run(
             return True
         return limit_s is not None and time.perf_counter() - started >= limit_s
 
-    prior = line.velocity_prior if line is not None else lambda frame: fixed
     if isinstance(device, CaptureReader):
         total = len(device) if args.frames is None else min(args.frames, len(device))
         outputs.append(StatusLine(Progress(total, f"tracking {args.source}")))

@@ -1,12 +1,13 @@
-"""The conveyor options of `tofcut live`, and the link they open: the controller (real, or
-emulated on a pseudo-terminal), the belt readings, and the reject rule.
+"""The conveyor options of `tofcut live`, `track`, `record` and `soak`, and the link they
+open: the controller (real, or emulated on a pseudo-terminal), the belt readings, and the
+reject rule. The belt's geometry is the run's, resolved once (`tools.belt_source`).
 
     add_conveyor_options(parser)
     ...
     line = open_conveyor(args, opened)      # None without --conveyor / --conveyor-emulator
     with line or contextlib.nullcontext():
         for frame in camera.frames():
-            prior = line.velocity_prior(frame)  # for the tracker
+            prior = line.velocity_prior(frame)  # for the tracker (or tools.run_belt.RunBelt)
             tracked = ...
             line.observe(tracked)               # rejects
 """
@@ -24,16 +25,23 @@ import numpy as np
 import rerun as rr
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
-from tofcut.driver.conveyor import ConveyorClient
+from tofcut.driver.conveyor import ConveyorClient, Listener
 from tofcut.driver.conveyor_map import ConveyorConfig, load_conveyor_config
 from tofcut.driver.errors import ConfigError
 from tofcut.driver.exposure_clock import ExposureClock
 from tofcut.driver.frames import Frame
-from tofcut.sim.conveyor import EmulatedConveyor, belt_geometry, for_scene
+from tofcut.sim.conveyor import EmulatedConveyor, for_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene import Scene
+from tofcut.tools.belt_source import (
+    BeltResolution,
+    NoBelt,
+    map_candidate,
+    resolve_belt,
+    resolve_run_belt,
+)
 from tofcut.tools.sources import Opened
 from tofcut.tracker.belt_prior import VelocityPrior, belt_velocity_prior
 from tofcut.tracker.reject_rule import RejectRule
@@ -44,7 +52,9 @@ EMULATOR_SPEED_MPS = 0.25
 """The emulated belt's speed when the camera is not an emulated scene with a belt."""
 
 
-def add_conveyor_options(parser: argparse.ArgumentParser) -> None:
+def add_conveyor_options(parser: argparse.ArgumentParser, *, rejects: bool = True) -> None:
+    """The conveyor's options; without `rejects`, no `--reject` nor `--diverter-distance`
+    (`tofcut record` links the conveyor only to log its encoder)."""
     g = parser.add_argument_group("conveyor (Modbus RTU, or Modbus TCP via tcp://HOST:PORT)")
     g.add_argument("--conveyor", metavar="PORT", help="the controller's serial port (see 'ports')")
     g.add_argument("--conveyor-map", metavar="FILE", type=Path, help="register map and link, TOML")
@@ -57,6 +67,9 @@ def add_conveyor_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--parity", choices=["N", "E", "O"], help="parity (default E; emulator N)")
     g.add_argument("--unit", type=int, metavar="ID", help="Modbus unit id (default 1)")
     g.add_argument("--poll-hz", type=float, metavar="HZ", help="encoder polls per second")
+    if not rejects:
+        parser.set_defaults(reject=None, diverter_distance=None)
+        return
     g.add_argument(
         "--reject",
         metavar="RULE",
@@ -101,6 +114,10 @@ class ConveyorLine:
     def frame_time_ns(self, frame: Frame) -> int:
         """The host time of the frame's exposure: when to ask the belt where it was."""
         return self.exposures.host_time_ns(frame)
+
+    def reading_at(self, time_ns: int) -> BeltReading | None:
+        """The belt at a host time, as the link knows it now (`ConveyorClient.reading_at`)."""
+        return self.client.reading_at(time_ns)
 
     def velocity_prior(self, frame: Frame) -> VelocityPrior | None:
         """The belt's velocity prior for a frame (None: the belt's direction is unknown)."""
@@ -152,15 +169,23 @@ def open_conveyor(
     args: argparse.Namespace,
     opened: Opened | None = None,
     on_reject: Callable[[RejectEvent], None] | None = None,
+    *,
+    resolution: BeltResolution | None = None,
+    on_reading: Listener | None = None,
 ) -> ConveyorLine | None:
     """Open what the options ask for; None when they ask for no conveyor.
 
-    `on_reject` is told of every reject as the diverter is fired (on the link's thread; it
-    must be quick); by default rejects go to rerun's global recording (`log_reject`).
+    The belt's geometry (the prior's direction, the rejects' measures) is `resolution`'s:
+    by default what the map and the source's metadata say (`belt_source.resolve_run_belt`).
+    `--reject` without a belt from anywhere is `NoBelt` (exit status 2), said before anything
+    is opened. `on_reject` is told of every reject as the diverter is fired (on the link's
+    thread; it must be quick); by default rejects go to rerun's global recording
+    (`log_reject`). `on_reading` hears every reading, the first one included (the
+    recorder's conveyor log).
 
     With `--conveyor-emulator` and an emulated scene, the controller's belt runs on the
     emulated camera's clock at the scene's speed, so its encoder counts the travel the
-    camera sees; the belt's geometry then comes from the scene, else from the map file.
+    camera sees.
     """
     if not args.conveyor and not args.conveyor_emulator:
         if args.reject:
@@ -169,38 +194,51 @@ def open_conveyor(
     if args.conveyor and args.conveyor_emulator:
         raise ConfigError("give --conveyor PORT or --conveyor-emulator, not both")
     config = conveyor_config(args, args.conveyor)
-    geometry = config.belt
+    if resolution is None:
+        resolution = (
+            resolve_run_belt(args, opened)
+            if opened is not None
+            else resolve_belt([map_candidate(args.conveyor_map)])
+        )
+    geometry = None if resolution.belt is None else resolution.belt.geometry
+    rule = None
+    if args.reject:
+        rule = RejectRule.parse(args.reject)
+        if geometry is None:
+            raise NoBelt(
+                "--reject needs the belt's geometry, and nothing gave it: give a [belt] table "
+                "in --conveyor-map (the source's metadata has none)"
+            )
+        if config.diverter_m is None:
+            raise ConfigError("rejects need --diverter-distance M (or belt.diverter_m in the map)")
     server = emulated = None
     if args.conveyor_emulator:
         scene = _scene(opened)
         camera = opened.emulator if opened is not None else None
         if scene is not None and scene.belt is not None and camera is not None:
             emulated = for_scene(scene, lambda: camera.now_us() * 1e-6, config.registers)
-            geometry = geometry or belt_geometry(scene)
         else:
             emulated = EmulatedConveyor(EMULATOR_SPEED_MPS, config.registers)
         server = PtyModbusServer(emulated, unit=config.link.unit).start()
         parity = args.parity or "N"  # a pseudo-terminal refuses parity settings
         config = replace(config, link=replace(config.link, port=server.port, parity=parity))
     client = ConveyorClient(config.link, config.registers)
+    if on_reading is not None:
+        client.add_listener(on_reading)
+    line = ConveyorLine(
+        client, None if geometry is None else geometry.direction, None, server, emulated
+    )
+    if opened is not None and opened.emulator is not None:  # its clock is the host's
+        line.exposures = ExposureClock(offset_ns=_device_clock_offset_ns(opened.emulator))
+    if rule is not None:
+        assert config.diverter_m is not None
+        line.rejects = _rejects(rule, geometry, config.diverter_m, client, on_reject or log_reject)
     try:
         client.open()
     except BaseException:
         if server is not None:
             server.close()
         raise
-    line = ConveyorLine(
-        client, None if geometry is None else geometry.direction, None, server, emulated
-    )
-    if opened is not None and opened.emulator is not None:  # its clock is the host's
-        line.exposures = ExposureClock(offset_ns=_device_clock_offset_ns(opened.emulator))
-    if args.reject:
-        try:
-            rule = RejectRule.parse(args.reject)
-            line.rejects = _rejects(rule, geometry, config, client, on_reject or log_reject)
-        except BaseException:
-            line.close()
-            raise
     return line
 
 
@@ -221,20 +259,15 @@ def _scene(opened: Opened | None) -> Scene | None:
 def _rejects(
     rule: RejectRule,
     geometry: BeltGeometry | None,
-    config: ConveyorConfig,
+    diverter_m: float,
     client: ConveyorClient,
     on_reject: Callable[[RejectEvent], None],
 ) -> RejectScheduler:
-    if geometry is None:
-        raise ConfigError("rejects need the belt's geometry: a [belt] table in --conveyor-map")
-    if config.diverter_m is None:
-        raise ConfigError("rejects need --diverter-distance M (or belt.diverter_m in the map)")
-
     def fire(event: RejectEvent) -> None:
         client.divert(event.track_id)
         on_reject(event)
 
-    scheduler = RejectScheduler(rule, geometry, config.diverter_m, client.reading_at, fire)
+    scheduler = RejectScheduler(rule, geometry, diverter_m, client.reading_at, fire)
     client.add_listener(scheduler.on_reading)
     return scheduler
 

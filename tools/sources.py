@@ -16,6 +16,7 @@ from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import ConfigError, TofcutError
 from tofcut.driver.events import DeviceEvent
+from tofcut.driver.protocol import MAX_SENSOR_SIDE
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.pattern import TestPattern
@@ -91,22 +92,36 @@ def scene_metadata(source: TapSource) -> dict[str, Any]:
     return meta
 
 
-def belt_of(meta: dict[str, Any]) -> KnownBelt | None:
-    """The belt recorded in a capture's or scene's metadata, or None."""
+def belt_of(meta: dict[str, Any], source: str = "capture") -> KnownBelt | None:
+    """The belt in a capture's (`source="capture"`) or a scene's (`"scene"`) metadata, or
+    None; every value checked (`SourceError`, one line, if one is off)."""
     if "belt" not in meta:
         return None
     try:
-        return KnownBelt.from_dict(meta["belt"], "capture")
+        return KnownBelt.from_dict(meta["belt"], source)
     except ConfigError as exc:
-        raise SourceError(f"the belt in the capture's metadata is unusable: {exc}") from None
+        whose = "capture's" if source == "capture" else "scene's"
+        raise SourceError(f"the belt in the {whose} metadata is unusable: {exc}") from None
 
 
 def scene_target(meta: dict[str, Any]) -> tuple[int, int] | None:
-    """The marked target's seed pixel (u, v) from scene metadata, or None."""
+    """The marked target's seed pixel (u, v) from scene or capture metadata, or None when
+    there is none; `SourceError` (one line) when it is not a pixel of the image."""
     seed = meta.get("target_pixel")
-    if isinstance(seed, list) and len(seed) == 2 and all(isinstance(x, int) for x in seed):
-        return (seed[0], seed[1])
-    return None
+    if seed is None:
+        return None
+    width, height = meta.get("width", MAX_SENSOR_SIDE), meta.get("height", MAX_SENSOR_SIDE)
+    if not (
+        isinstance(seed, list)
+        and len(seed) == 2
+        and all(isinstance(x, int) and not isinstance(x, bool) for x in seed)
+        and isinstance(width, int)
+        and isinstance(height, int)
+        and 0 <= seed[0] < width
+        and 0 <= seed[1] < height
+    ):
+        raise SourceError(f"the metadata's target_pixel is not a pixel of the image: {seed!r:.40}")
+    return (seed[0], seed[1])
 
 
 def open_source(

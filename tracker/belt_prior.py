@@ -4,6 +4,7 @@
 reading into a 3D velocity in camera coordinates with its covariance: tight along the belt
 (the encoder knows the speed), looser across it (objects slide and turn a little), and
 wide open when there is no reading, it is too old, or the controller reports a fault.
+Without an encoder, `known_speed_prior(belt)` gives the belt's nominal speed, less tightly.
 """
 
 from __future__ import annotations
@@ -13,9 +14,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.driver.belt import BeltReading
+from tofcut.driver.belt import BeltReading, KnownBelt
 
 F64 = npt.NDArray[np.float64]
+
+KNOWN_SPEED_SIGMA_MPS = 0.02
+"""How sure the tracker is of a belt's speed as a scene, a capture or a finder gives it, m/s."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,3 +59,15 @@ def belt_velocity_prior(
     dd = np.outer(d, d)
     cov = along**2 * dd + cross_sigma_mps**2 * (np.eye(3) - dd)
     return VelocityPrior(reading.speed_mps * d, cov, informed=True)
+
+
+def known_speed_prior(
+    belt: KnownBelt, sigma_mps: float = KNOWN_SPEED_SIGMA_MPS
+) -> VelocityPrior | None:
+    """The prior from a belt's known speed, where there is no encoder: the belt's velocity,
+    `sigma_mps` either way (the speed is a nominal one, not a reading); None without a speed."""
+    if belt.speed_mps is None:
+        return None
+    return VelocityPrior(
+        belt.geometry.direction * belt.speed_mps, np.eye(3) * sigma_mps**2, informed=True
+    )

@@ -61,6 +61,10 @@ class RejectStats:
     fired: int = 0
     passed: int = 0
     """Objects that reached the diverter without matching the rule."""
+    no_belt: int = 0
+    """Track observations dropped because the belt's geometry was not known yet."""
+    belt_changes: int = 0
+    """Times the belt's geometry was replaced during the run (`set_belt`)."""
 
 
 @dataclass
@@ -87,13 +91,15 @@ class RejectScheduler:
     def __init__(
         self,
         rule: RejectRule,
-        belt: BeltGeometry,
+        belt: BeltGeometry | None,
         diverter_m: float,
         belt_at: Callable[[int], BeltReading | None],
         fire: Callable[[RejectEvent], None],
     ) -> None:
-        """`belt_at(time_ns)`: the belt at a frame's time (`ConveyorClient.reading_at`);
-        `fire(event)`: send the command (e.g. `lambda e: client.divert(e.track_id)`)."""
+        """`belt`: the belt's geometry, or None until it is known (`set_belt`; till then
+        nothing is placed); `belt_at(time_ns)`: the belt at a frame's time
+        (`ConveyorClient.reading_at`); `fire(event)`: send the command (e.g.
+        `lambda e: client.divert(e.track_id)`)."""
         self.rule = rule
         self.belt = belt
         self.diverter_m = diverter_m
@@ -104,7 +110,18 @@ class RejectScheduler:
         self._done: dict[int, None] = {}
         """Tracks that reached the diverter (an ordered set, the newest `_MAX_DONE`)."""
         self._events: deque[RejectEvent] = deque(maxlen=EVENTS_KEPT)
-        self._stats = {"views": 0, "unplaced": 0, "fired": 0, "passed": 0}
+        self._stats = dict.fromkeys(
+            ("views", "unplaced", "fired", "passed", "no_belt", "belt_changes"), 0
+        )
+
+    def set_belt(self, belt: BeltGeometry) -> None:
+        """Measure on this belt from now on (one that became known during the run). Objects
+        placed on the old one are dropped: their positions along it mean nothing on this one;
+        the rule votes again from their next view."""
+        with self._lock:
+            self.belt = belt
+            self._candidates.clear()
+            self._stats["belt_changes"] += 1
 
     @property
     def events(self) -> list[RejectEvent]:
@@ -123,11 +140,18 @@ class RejectScheduler:
         """Record one frame's tracks (camera coordinates) taken at host time `time_ns` (the
         exposure's: see `tofcut.driver.exposure_clock`). With the frame's (H, W), objects cut
         by the image border vote on the rule but are not used to place the object."""
-        measured = [m for t in tracks if t.visible and (m := measure_track(t, self.belt))]
+        belt = self.belt
+        if belt is None:
+            with self._lock:
+                self._stats["no_belt"] += sum(t.visible for t in tracks)
+            return
+        measured = [m for t in tracks if t.visible and (m := measure_track(t, belt))]
         if not measured:
             return
         reading = self._belt_at(time_ns)
         with self._lock:
+            if belt is not self.belt:  # replaced meanwhile: these were measured on the old one
+                return
             if reading is None:
                 self._stats["unplaced"] += len(measured)
                 return
