@@ -14,7 +14,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tofcut.driver.belt import BeltGeometry
@@ -172,7 +171,7 @@ class BackgroundModel:
         loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
         if not loud.any():
             return nearer, self.sigma
-        median = ndimage.median_filter(nearer, size=3, mode="nearest")
+        median = kernels.median3_at(nearer, loud)
         return (
             np.where(loud, median, nearer),
             np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
@@ -202,19 +201,11 @@ def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: Backg
     nearness (over the `usable` pixels in it, at least half of them) is `REGION_SIGMAS` times
     that mean's own noise and half the lowest object's height (`min_height_sigmas`). A low
     object in loud noise, none of whose pixels stands out alone, is found this way."""
-    w = usable.astype(np.float64)
-    nearer = np.where(usable, model - seen, 0.0)
-    var = np.where(usable, sigma * sigma, 0.0)
-    side = REGION_SIDE
-    count = ndimage.uniform_filter(w, side, mode="constant") * side * side
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = ndimage.uniform_filter(nearer, side, mode="constant") * side * side / count
-        mean_var = ndimage.uniform_filter(var, side, mode="constant") * side * side / count
-        enough = count >= side * side / 2
-        low = REGION_HEIGHT_SHARE * params.min_height_sigmas * np.sqrt(mean_var)
-        out = enough & (mean > REGION_SIGMAS * np.sqrt(mean_var / count)) & (mean > low)
-        out &= mean > params.min_height_m
-    return out & usable
+    out: B = kernels.standing_regions(
+        model, sigma, usable, seen, REGION_SIDE, REGION_SIGMAS,
+        REGION_HEIGHT_SHARE * params.min_height_sigmas, params.min_height_m,
+    )  # fmt: skip
+    return out
 
 
 def near_any(xyz: F64, where: B, points: F64, reach: float) -> B:

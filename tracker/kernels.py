@@ -1076,6 +1076,154 @@ def noise_scaled(shape: F64, scale: float, floor: float) -> F64:
     return out
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def standing_regions(
+    model: F64, sigma: F64, usable: B, seen: F64, side: int, sigmas: float, low_share: float,
+    min_height: float,
+) -> B:  # fmt: skip
+    """`tofcut.tracker.background.standing_regions`: the `usable` pixels whose side × side
+    neighbourhood (its usable pixels, at least half of it) stands nearer than the scenery
+    on average by `sigmas` times that mean's noise, by `low_share` of its pixels' mean noise
+    and by `min_height`; summed over the window by running sums (integral images)."""
+    h, w = model.shape
+    s_n = np.zeros((h + 1, w + 1))
+    s_v = np.zeros((h + 1, w + 1))
+    s_c = np.zeros((h + 1, w + 1))
+    for v in range(h):
+        rn = rv = rc = 0.0
+        for u in range(w):
+            if usable[v, u]:
+                rn += model[v, u] - seen[v, u]
+                rv += sigma[v, u] * sigma[v, u]
+                rc += 1.0
+            s_n[v + 1, u + 1] = s_n[v, u + 1] + rn
+            s_v[v + 1, u + 1] = s_v[v, u + 1] + rv
+            s_c[v + 1, u + 1] = s_c[v, u + 1] + rc
+    out = np.zeros((h, w), np.bool_)
+    r = side // 2
+    for v in range(h):
+        v0, v1 = max(v - r, 0), min(v + r + 1, h)
+        for u in range(w):
+            if not usable[v, u]:
+                continue
+            u0, u1 = max(u - r, 0), min(u + r + 1, w)
+            count = s_c[v1, u1] - s_c[v0, u1] - s_c[v1, u0] + s_c[v0, u0]
+            if count < side * side / 2:
+                continue
+            mean = (s_n[v1, u1] - s_n[v0, u1] - s_n[v1, u0] + s_n[v0, u0]) / count
+            mean_var = (s_v[v1, u1] - s_v[v0, u1] - s_v[v1, u0] + s_v[v0, u0]) / count
+            out[v, u] = (
+                mean > sigmas * math.sqrt(mean_var / count)
+                and mean > low_share * math.sqrt(mean_var)
+                and mean > min_height
+            )
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def median3_at(values: F64, where: B) -> F64:
+    """`values` with each pixel in `where` replaced by the median of its 3×3 neighbourhood
+    (`scipy.ndimage.median_filter(values, 3, mode="nearest")` there)."""
+    h, w = values.shape
+    out = values.copy()
+    window = np.empty(9)
+    for v in range(h):
+        for u in range(w):
+            if not where[v, u]:
+                continue
+            k = 0
+            for dv in (-1, 0, 1):
+                for du in (-1, 0, 1):
+                    x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
+                    j = k  # insertion sort as it fills
+                    while j > 0 and window[j - 1] > x:
+                        window[j] = window[j - 1]
+                        j -= 1
+                    window[j] = x
+                    k += 1
+            out[v, u] = window[4]
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def steep_pixels(
+    where: B, xyz: F64, noise: F64, normal: F64, baseline: int, max_slope: float
+) -> tuple[B, F64, F64]:
+    """`tofcut.tracker.tops.facing_up`'s arithmetic: of `where`'s points averaged over 3×3,
+    the pixels on a span of `baseline` pixels (along a row or a column) whose rise along
+    `normal` is more than `max_slope` times their spacing across it; and, per direction,
+    each pair's slope noise (a 3×3 mean's noise twice, over the spacing)."""
+    h, w = where.shape
+    pts = np.full((h, w, 3), np.nan)
+    for v in range(h):
+        for u in range(w):
+            if not where[v, u]:
+                continue
+            n = 0
+            sx = sy = sz = 0.0
+            for v2 in range(max(v - 1, 0), min(v + 2, h)):
+                for u2 in range(max(u - 1, 0), min(u + 2, w)):
+                    if where[v2, u2]:
+                        sx += xyz[v2, u2, 0]
+                        sy += xyz[v2, u2, 1]
+                        sz += xyz[v2, u2, 2]
+                        n += 1
+            pts[v, u, 0], pts[v, u, 1], pts[v, u, 2] = sx / n, sy / n, sz / n
+    steep = np.zeros((h, w), np.bool_)
+    ratios = np.empty((2, h * w))
+    counts = np.zeros(2, np.int64)
+    share = math.sqrt(2.0) / 3.0
+    for axis in range(2):
+        dv, du = (baseline, 0) if axis == 0 else (0, baseline)
+        for v in range(h - dv):
+            for u in range(w - du):
+                if not (where[v, u] and where[v + dv, u + du]):
+                    continue
+                d0 = pts[v + dv, u + du, 0] - pts[v, u, 0]
+                d1 = pts[v + dv, u + du, 1] - pts[v, u, 1]
+                d2 = pts[v + dv, u + du, 2] - pts[v, u, 2]
+                rise = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+                a0, a1, a2 = d0 - rise * normal[0], d1 - rise * normal[1], d2 - rise * normal[2]
+                spacing = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+                ratios[axis, counts[axis]] = noise[v, u] * share / max(spacing, 1e-6)
+                counts[axis] += 1
+                if abs(rise) > max_slope * spacing:
+                    for k in range(baseline + 1):
+                        steep[v + k * dv // baseline, u + k * du // baseline] = True
+    return steep, ratios[0, : counts[0]].copy(), ratios[1, : counts[1]].copy()
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def top_stats(
+    tops: npt.NDArray[np.int32], n: int, pieces: npt.NDArray[np.int32], xyz: F64,
+    noise: F64, origin: F64, normal: F64,
+) -> tuple[I64, F64, F64, I64]:  # fmt: skip
+    """Per top 1..n (index 0 unused): its pixels, mean height along `normal` above `origin`,
+    the mean of its pixels' noise², and the piece it lies in."""
+    size = np.zeros(n + 1, np.int64)
+    height = np.zeros(n + 1)
+    noise2 = np.zeros(n + 1)
+    home = np.zeros(n + 1, np.int64)
+    h, w = tops.shape
+    for v in range(h):
+        for u in range(w):
+            t = tops[v, u]
+            if t == 0:
+                continue
+            size[t] += 1
+            height[t] += (
+                (xyz[v, u, 0] - origin[0]) * normal[0] + (xyz[v, u, 1] - origin[1]) * normal[1]
+                + (xyz[v, u, 2] - origin[2]) * normal[2]
+            )  # fmt: skip
+            noise2[t] += noise[v, u] ** 2
+            home[t] = pieces[v, u]
+    for t in range(1, n + 1):
+        if size[t]:
+            height[t] /= size[t]
+            noise2[t] /= size[t]
+    return size, height, noise2, home
+
+
 def warm_up() -> None:
     """Load (or compile) every kernel for the argument types the tracker calls it with, so
     the first frames of a live run do not stall on it (about a second, once per process)."""
@@ -1120,6 +1268,11 @@ def warm_up() -> None:
         f64, f64, yes, counts, f64, counts, np.zeros((1, 1, 1)), f64, yes, yes, yes, f64, 1.0,
         1.0, 1.0, 1, 1.0, 1.0,
     )  # fmt: skip
+    median3_at(f64, yes)
+    standing_regions(f64, f64, yes, f64, 1, 1.0, 1.0, 1.0)
+    steep_pixels(yes, xyz, f64, np.ones(3), 1, 1.0)
+    top_stats(np.ones((2, 2), np.int32), 1, np.ones((2, 2), np.int32), xyz, f64, np.zeros(3),
+              np.ones(3))  # fmt: skip
     _warm = True
 
 

@@ -14,6 +14,7 @@ import numpy.typing as npt
 from scipy import ndimage
 
 from tofcut.driver.belt import BeltGeometry
+from tofcut.tracker import kernels
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
@@ -32,68 +33,17 @@ MAX_SLOPE_NOISE = 0.2
 one time in a hundred), no surface is told facing up."""
 
 
-def _smoothed(xyz: F64, where: B) -> F64:
-    """`where`'s points averaged over 3×3 (nan elsewhere)."""
-    w = ndimage.uniform_filter(where.astype(np.float64), 3, mode="constant")
-    pts = np.where(where[..., None], xyz, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        out = (
-            np.stack(
-                [ndimage.uniform_filter(pts[..., k], 3, mode="constant") for k in range(3)], axis=-1
-            )
-            / w[..., None]
-        )
-    out[~where] = np.nan
-    return out
-
-
 def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     """The pixels of `body` on surfaces facing up from the belt (their slope over `BASELINE`
     pixels below `MAX_SLOPE`); None where the range noise makes the slope meaningless."""
-    where = body & np.isfinite(xyz).all(axis=-1)
+    where = body & np.isfinite(xyz[..., 2])
     if not where.any():
         return where
-    # only the body's box (and a margin for the filters) is looked at
-    rows, cols = np.nonzero(where.any(axis=1))[0], np.nonzero(where.any(axis=0))[0]
-    box = (
-        slice(max(int(rows[0]) - 2, 0), int(rows[-1]) + 3),
-        slice(max(int(cols[0]) - 2, 0), int(cols[-1]) + 3),
-    )
-    out = np.zeros(body.shape, bool)
-    up = _facing_up(where[box], xyz[box], noise[box], belt)
-    if up is None:
+    steep, *ratios = kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    if any(r.size and kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
         return None
-    out[box] = up
-    return out
-
-
-def _facing_up(where: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
-    """`facing_up` within a box round the body."""
-    pts = _smoothed(xyz, where)
-    n = belt.normal
-    steep = np.zeros(where.shape, bool)
-    slope_noise = []
-    b = BASELINE
-    for axis in (0, 1):
-        first, second = [slice(None)] * 2, [slice(None)] * 2
-        first[axis], second[axis] = slice(0, -b), slice(b, None)
-        d = pts[tuple(second)] - pts[tuple(first)]
-        both = where[tuple(first)] & where[tuple(second)]
-        dh = d @ n
-        lateral = np.linalg.norm(d - dh[..., None] * n, axis=-1)
-        with np.errstate(invalid="ignore"):
-            pair = both & (np.abs(dh) > MAX_SLOPE * lateral)
-        if both.any():
-            # a 3×3 mean's noise, twice (the difference), over the spacing
-            sigma = noise[tuple(first)][both] * (np.sqrt(2.0) / 3.0)
-            slope_noise.append(float(np.median(sigma / np.maximum(lateral[both], 1e-6))))
-        for offset in range(b + 1):
-            span = [slice(None)] * 2
-            span[axis] = slice(offset, offset + pair.shape[axis])
-            steep[tuple(span)] |= pair
-    if slope_noise and max(slope_noise) > MAX_SLOPE_NOISE:
-        return None
-    return where & ~steep
+    up: B = where & ~steep
+    return up
 
 
 def split_by_tops(
@@ -104,17 +54,18 @@ def split_by_tops(
     those tops: each pixel to the nearest in the image (a side face to the top it rises to
     or falls from). Pieces with one top, or tops at one height (one object's top broken up
     by noise), are kept whole."""
-    tops, n = ndimage.label(up & (pieces > 0))
+    tops = kernels.label_pieces(up & (pieces > 0))
+    n = int(tops.max())
     if n < 2:
         return pieces
-    index = np.arange(1, n + 1)
-    sizes = ndimage.sum_labels(np.ones(pieces.shape), tops, index)
-    height = ndimage.mean(belt.height(np.nan_to_num(xyz)), tops, index)
-    spread = np.sqrt(ndimage.mean(noise * noise, tops, index) / np.maximum(sizes, 1))
-    big = sizes >= min_pixels
+    size, height, noise2, home = kernels.top_stats(
+        tops, n, pieces, xyz, noise, belt.origin, belt.normal
+    )
+    big = size >= min_pixels
+    big[0] = False
     if big.sum() < 2:
         return pieces
-    home = np.array(ndimage.maximum(pieces, tops, index), np.int64)
+    spread = np.sqrt(noise2 / np.maximum(size, 1))
     parted = []
     for piece in np.unique(home[big]).tolist():
         mine = np.nonzero(big & (home == piece))[0]
@@ -125,20 +76,18 @@ def split_by_tops(
             MIN_TOP_STEP_M, 3.0 * np.hypot(s[:, None], s[None, :])
         )
         if apart.any():
-            parted.append((piece, mine + 1))
+            parted.append((piece, mine))
     if not parted:
         return pieces
     out = pieces.astype(np.int64)
     label = int(pieces.max())
     for piece, own in parted:
         region = pieces == piece
-        seeds = np.isin(tops, own)
-        _, (rows, cols) = ndimage.distance_transform_edt(~seeds, return_indices=True)
-        nearest = tops[rows, cols]
+        _, (rows, cols) = ndimage.distance_transform_edt(~np.isin(tops, own), return_indices=True)
         relabel = np.zeros(n + 1, np.int64)
         relabel[own] = label + 1 + np.arange(own.size)
         label += own.size
-        out[region] = relabel[nearest[region]]
+        out[region] = relabel[tops[rows, cols][region]]
     # number the pieces 1..m in order of first appearance, as `kernels.label_pieces` does
     _, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
     rank = np.empty(first.size, np.int64)
