@@ -336,7 +336,7 @@ class ConveyorLine:
             f"{self.name}: drawn by `tofcut scenes --family conveyor --seed {self.seed}`",
             f"(conveyor family version {FAMILY_VERSION}).",
             "",
-            *textwrap.wrap(self.summary(), 96),
+            *textwrap.wrap(self.summary(), 96, break_on_hyphens=False),
             "",
             "A scene file like any other: edit it and record it with",
             "`tofcut record emulator:FILE.toml`. The belt loop (objects wrap from loop_start +",

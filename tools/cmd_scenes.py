@@ -77,7 +77,7 @@ def _run_family(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise SceneError(f"a family's seed is a whole number ≥ 0, not {args.seed}")
     line = draw_line(args.family, args.seed)
-    print(textwrap.fill(line.summary(), 100))
+    print(textwrap.fill(line.summary(), 100, break_on_hyphens=False))
     if args.toml_out is not None:
         args.toml_out.parent.mkdir(parents=True, exist_ok=True)
         args.toml_out.write_text(line.toml(), encoding="utf-8")
