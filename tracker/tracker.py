@@ -254,7 +254,9 @@ class Tracker:
         self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
     ) -> None:
         self.params = params or TrackerParams()
-        self.belt = belt
+        self._belt = belt
+        self._belt_laid = False
+        """Whether the belt has been put under what stood on it while the scenery was learned."""
         self.background: BackgroundModel | None = None
         self._tracks: list[_Live] = []
         self._candidates: list[_Candidate] = []
@@ -269,6 +271,19 @@ class Tracker:
         """Farthest a track's surface can be from a point it could still win, in its spread."""
         self._most_ties = 2 * p.smoothness * float(kernels.FACTORS.sum())
         """The most a pixel's ties can add up to (all eight neighbours at its place)."""
+
+    @property
+    def belt(self) -> BeltGeometry | None:
+        """The belt objects ride on, where known."""
+        return self._belt
+
+    @belt.setter
+    def belt(self, belt: BeltGeometry | None) -> None:
+        """A belt that became known during the run (found from the data, or given late): used
+        from the next frame on, and put under what the scenery took in on it."""
+        if belt is not self._belt:
+            self._belt = belt
+            self._belt_laid = False
 
     def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
         """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
@@ -317,11 +332,13 @@ class Tracker:
             self._sorted.pop(gone, None)
         if ready:
             self.background.update(frame, labels == 0, noise, self._track_points(), p.keep_clear_m)
-        elif (
+        else:
             self.background.learn(frame, noise, self._track_points(), p.keep_clear_m)
-            and self.belt is not None
-        ):
+        if not self._belt_laid and self.background.ready and self.belt is not None:
+            # what stood on the belt while the scenery was learned is not scenery: the
+            # belt goes under it, once the scenery and the belt are both known
             self.background.clear_belt(frame, self.belt)
+            self._belt_laid = True
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
 
