@@ -31,6 +31,9 @@ BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
 MEDIAN_NOISE_SHARE = 0.418
 """Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
+BEHIND_BELT_M = 0.3
+"""Scenery read this much farther than the belt or more is not the belt (the floor beside a
+belt whose width is not known, a leg of its stand)."""
 REGION_SIDE = 5
 """Side (pixels) of the neighbourhood whose mean height decides where one pixel cannot."""
 REGION_SIGMAS = 6.0
@@ -125,15 +128,23 @@ class BackgroundModel:
         return True
 
     def clear_belt(self, frame: Frame, belt: BeltGeometry) -> None:
-        """Put the belt where the model saw something in front of it while learning: objects
-        that stood on the belt during the first frames are not scenery."""
+        """Put the belt where the model saw something in front of it while learning (objects
+        that stood on the belt during the first frames are not scenery), and where it saw a
+        little behind it (an object's edge or a flying pixel read far while the scenery was
+        learned: nothing is seen through a belt, and such a pixel would stand out once the
+        belt shows there)."""
         with np.errstate(invalid="ignore", divide="ignore"):
             rays = frame.xyz / frame.range[..., None]
         surface = belt.range_along(rays)
-        above = self.known & np.isfinite(surface) & belt.over_belt(rays * self.range[..., None])
-        above &= self.range < surface - self.params.min_height_m
-        self.range[above] = surface[above]
-        self.sigma[above] = np.maximum(self.sigma[above], self.params.min_sigma_m)
+        on = self.known & np.isfinite(surface) & belt.over_belt(rays * self.range[..., None])
+        with np.errstate(invalid="ignore"):
+            off = self.range - surface
+            above = on & (off < -self.params.min_height_m)
+            behind = on & (off > np.maximum(3.0 * self.sigma, self.params.min_height_m))
+            behind &= off < BEHIND_BELT_M
+        fix = above | behind
+        self.range[fix] = surface[fix]
+        self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
 
     def absorb(self, frame: Frame, where: B, noise: F64) -> None:
         """Take what is seen in `where` as scenery from now on (something that stays put)."""
