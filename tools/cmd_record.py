@@ -1,4 +1,9 @@
-"""`tofcut record CAMERA -o FILE.tofcap`: write the raw stream to a capture file."""
+"""`tofcut record CAMERA -o FILE.tofcap`: write the raw stream to a capture file.
+
+`--bare` records as a real camera would: the capture's metadata holds only the camera's own
+keys (`tofcut.driver.capture.CAMERA_KEYS`), so what is tracked or evaluated from it cannot
+lean on the emulator's knowledge of the scene; the ground truth still goes beside it.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +13,7 @@ import time
 from pathlib import Path
 
 from tofcut.driver.camera import Camera
-from tofcut.driver.capture import CaptureWriter, capture_metadata
+from tofcut.driver.capture import CaptureWriter, bare_metadata, capture_metadata
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
@@ -30,6 +35,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--reconnect", action="store_true",
         help="record through unplugs, stalls and hangs (default: stop at the first, with an "
         "error); the closing lines say what was lost",
+    )  # fmt: skip
+    p.add_argument(
+        "--bare", action="store_true",
+        help="keep only what the camera itself tells (serial, firmware, registers, ...), as a "
+        "real camera's capture has it: no scene, belt or target; the emulator's ground truth "
+        "is still written beside the capture",
     )  # fmt: skip
     add_camera_options(p)
     p.set_defaults(func=run)
@@ -66,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
             cam.configure(asked)
         registers = {r.name: cam.read_register(r) for r in sorted(WRITABLE_REGISTERS)}
         meta = capture_metadata(cam.info, registers, source=str(args.source), **opened.metadata)
+        if args.bare:
+            meta = bare_metadata(meta)
         progress = Progress(frames_wanted, f"recording {args.output}")
         start = time.monotonic()
         truths: list[FrameTruth] = []
