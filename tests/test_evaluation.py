@@ -4,10 +4,12 @@ the baseline tracker, and the family runner through the real command line."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tofcut.driver.capture import CAMERA_KEYS, CaptureReader, bare_copy
-from tofcut.sim.truth import load_truth, truth_path
+from tofcut.sim.truth import FrameTruth, ObjectTruth, load_truth, truth_path
 from tofcut.tools.cli import main
+from tofcut.tools.scoring import evaluate
 
 # --- bare captures ---------------------------------------------------------------------------
 
@@ -31,3 +33,115 @@ def test_a_bare_capture_holds_only_the_cameras_metadata_and_replays_the_same_fra
     assert set(reader.capture.metadata) == set(CAMERA_KEYS)
     assert len(list(reader.frames())) == 6
     assert len(load_truth(truth_path(direct))) == 6
+
+
+# --- the two matchings on hand-made label images ---------------------------------------------
+
+H = W = 20
+_X, _Y = np.meshgrid((np.arange(W) - 9.5) * 0.05, (np.arange(H) - 9.5) * 0.05)
+RAYS = np.dstack([_X, _Y, np.ones((H, W))])
+RAYS /= np.linalg.norm(RAYS, axis=-1, keepdims=True)
+FRAMES = 6
+
+
+def _square(v: int, u: int, n: int = 4) -> np.ndarray:
+    m = np.zeros((H, W), bool)
+    m[v : v + n, u : u + n] = True
+    return m
+
+
+def _centroid(mask: np.ndarray) -> list[float]:
+    return RAYS[mask].mean(axis=0).tolist()  # range 1 m everywhere
+
+
+def _scene():
+    """Two 4×4 objects moving right a pixel a frame, and a static one (scenery)."""
+    truths, tracks, masks = [], {}, {}
+    for f in range(FRAMES):
+        labels = np.zeros((H, W), np.int32)
+        objs = []
+        for oid, mask in ((1, _square(2, 1 + f)), (2, _square(10, 1 + f)), (3, _square(15, 15))):
+            labels[mask] = oid
+            c = np.array(_centroid(mask))
+            objs.append(ObjectTruth(oid, f"o{oid}", np.eye(4), c, c, c, int(mask.sum())))
+        truths.append(FrameTruth(f, f * 0.02, (0.0,) * 4, labels, np.ones((H, W), np.float32),
+                                 tuple(objs)))  # fmt: skip
+        tracks[f] = [{"id": 10 * o, "centroid": _centroid(labels == o)} for o in (1, 2, 3)]
+        masks[f] = np.where(labels > 0, labels * 10, 0).astype(np.uint16)
+    return truths, tracks, masks
+
+
+def _score(truths, tracks, masks):
+    return evaluate(truths, tracks, masks, RAYS, gate=0.1, min_pixels=5)
+
+
+def test_a_perfect_run_scores_one_both_ways():
+    s = _score(*_scene())
+    for m in (s.by_centroid, s.by_iou):
+        assert (m.mota, m.idf1, m.id_switches, m.objects) == (1.0, 1.0, 0, 2 * FRAMES)
+    assert s.mask_iou == 1.0
+    assert s.matched_iou == 1.0  # the static object's track is ignored, not a false positive
+
+
+def test_a_swapped_id_is_a_switch_both_ways():
+    truths, tracks, masks = _scene()
+    for f in range(3, FRAMES):  # from frame 3 on, tracks 10 and 20 trade objects
+        for t in tracks[f]:
+            t["id"] = {10: 20, 20: 10}.get(t["id"], t["id"])
+        m = masks[f].copy()
+        m[masks[f] == 10], m[masks[f] == 20] = 20, 10
+        masks[f] = m
+    s = _score(truths, tracks, masks)
+    for m in (s.by_centroid, s.by_iou):
+        assert m.id_switches == 2
+        assert m.mota == pytest.approx(1 - 2 / (2 * FRAMES))
+        assert m.idf1 == pytest.approx(0.5)  # each track holds its object in half the frames
+    assert s.mask_iou == 1.0  # masks are whole: the IoU does not see whose id it is
+
+
+def test_a_missed_object_and_a_false_positive_lower_mota_by_their_count():
+    truths, tracks, masks = _scene()
+    for f in (1, 2):  # object 2 is missed in two frames
+        tracks[f] = [t for t in tracks[f] if t["id"] != 20]
+        masks[f] = np.where(masks[f] == 20, 0, masks[f]).astype(np.uint16)
+    fp = _square(6, 14, 3)  # on the background in three frames
+    for f in (3, 4, 5):
+        tracks[f] = [*tracks[f], {"id": 99, "centroid": _centroid(fp)}]
+        masks[f] = np.where(fp, 99, masks[f]).astype(np.uint16)
+    s = _score(truths, tracks, masks)
+    n = 2 * FRAMES
+    for m in (s.by_centroid, s.by_iou):
+        assert (m.misses, m.false_positives, m.id_switches) == (2, 3, 0)
+        assert m.mota == pytest.approx(1 - 5 / n)
+    assert s.mask_iou == pytest.approx((n - 2) / n)  # a missed object-frame counts 0
+
+
+def test_a_mask_under_half_the_object_matches_by_centroid_but_not_by_iou():
+    truths, tracks, masks = _scene()
+    n, f = 2 * FRAMES, 2
+    obj = truths[f].labels == 2  # columns 1 + f to 4 + f
+    cols = np.arange(W)[None, :]
+    masks[f] = np.where(masks[f] == 20, 0, masks[f]).astype(np.uint16)
+    masks[f][obj & (cols < 1 + f + 3)] = 20  # 3 of its 4 columns: IoU 0.75, still a match
+    s = _score(truths, tracks, masks)
+    assert (s.by_iou.misses, s.by_iou.false_positives) == (0, 0)
+    assert s.mask_iou == pytest.approx((n - 1 + 0.75) / n)
+    masks[f] = np.where(masks[f] == 20, 0, masks[f]).astype(np.uint16)
+    masks[f][obj & (cols < 1 + f + 1)] = 20  # 1 of its 4 columns: IoU 0.25
+    s = _score(truths, tracks, masks)
+    assert (s.by_iou.misses, s.by_iou.false_positives) == (1, 1)
+    assert s.by_iou.mota == pytest.approx(1 - 2 / n)
+    # the centroid the track reports is still the object's
+    assert (s.by_centroid.misses, s.by_centroid.false_positives) == (0, 0)
+    assert s.mask_iou == pytest.approx((n - 1 + 0.25) / n)
+
+
+def test_a_track_mostly_on_scenery_or_a_small_object_is_ignored_by_iou():
+    truths, tracks, masks = _scene()
+    for f in range(FRAMES):  # the static object's track grows onto the background a little
+        masks[f][14, 15:19] = 30
+    s = _score(truths, tracks, masks)
+    assert s.by_iou.false_positives == 0
+    for f in range(FRAMES):  # now most of it is background: a false positive
+        masks[f][0:5, 15:20] = 30
+    assert _score(truths, tracks, masks).by_iou.false_positives == FRAMES
