@@ -8,6 +8,7 @@ import pytest
 
 from tofcut.driver.capture import CAMERA_KEYS, CaptureReader, bare_copy
 from tofcut.sim.truth import FrameTruth, ObjectTruth, load_truth, truth_path
+from tofcut.tools.baseline import MIN_PIXELS, STEP_M, components
 from tofcut.tools.cli import main
 from tofcut.tools.scoring import evaluate
 
@@ -145,3 +146,23 @@ def test_a_track_mostly_on_scenery_or_a_small_object_is_ignored_by_iou():
     for f in range(FRAMES):  # now most of it is background: a false positive
         masks[f][0:5, 15:20] = 30
     assert _score(truths, tracks, masks).by_iou.false_positives == FRAMES
+
+
+# --- the baseline ----------------------------------------------------------------------------
+
+
+def test_the_baseline_cuts_components_at_3d_steps_and_drops_small_ones():
+    stands_out = np.zeros((30, 30), bool)
+    stands_out[2:12, 2:22] = True  # one region in the image...
+    stands_out[20:23, 20:23] = True  # ...and a small one
+    xyz = np.zeros((30, 30, 3))
+    xyz[..., 0] = np.arange(30)[None, :] * 0.005
+    xyz[..., 1] = np.arange(30)[:, None] * 0.005
+    xyz[..., 2] = np.where(np.arange(30)[None, :] < 12, 1.0, 1.0 + 2 * STEP_M)  # a step at u=12
+    index, count = components(stands_out, xyz)
+    assert count == 2
+    assert MIN_PIXELS > 9
+    assert set(np.unique(index[2:12, 2:12])) == {0}
+    assert set(np.unique(index[2:12, 12:22])) == {1}
+    assert (index[20:23, 20:23] == -1).all()
+    assert (index[~stands_out] == -1).all()
