@@ -3,13 +3,18 @@ the baseline tracker, and the family runner through the real command line."""
 
 from __future__ import annotations
 
+import json
+import sys
+
 import numpy as np
 import pytest
 
 from tofcut.driver.capture import CAMERA_KEYS, CaptureReader, bare_copy
-from tofcut.sim.truth import FrameTruth, ObjectTruth, load_truth, truth_path
+from tofcut.sim.truth import FrameTruth, ObjectTruth, load_truth
+from tofcut.tools import family
 from tofcut.tools.baseline import MIN_PIXELS, STEP_M, components
 from tofcut.tools.cli import main
+from tofcut.tools.family import parse_seeds
 from tofcut.tools.scoring import evaluate
 
 # --- bare captures ---------------------------------------------------------------------------
@@ -26,14 +31,7 @@ def test_a_bare_capture_holds_only_the_cameras_metadata_and_replays_the_same_fra
     for x, y in zip(a, b, strict=True):
         assert x.header == y.header
         np.testing.assert_array_equal(x.range, y.range)
-    # recorded bare directly: the camera's keys only, and the truth still beside it
-    direct = tmp_path / "direct.tofcap"
-    cmd = ["record", "emulator:conveyor", "-o", str(direct), "--frames", "6", "--fast", "--bare"]
-    assert main(cmd) == 0
-    reader = CaptureReader(direct)
-    assert set(reader.capture.metadata) == set(CAMERA_KEYS)
-    assert len(list(reader.frames())) == 6
-    assert len(load_truth(truth_path(direct))) == 6
+    # `tofcut record --bare` itself: the family runner's captures, in its test below
 
 
 # --- the two matchings on hand-made label images ---------------------------------------------
@@ -166,3 +164,93 @@ def test_the_baseline_cuts_components_at_3d_steps_and_drops_small_ones():
     assert set(np.unique(index[2:12, 12:22])) == {1}
     assert (index[20:23, 20:23] == -1).all()
     assert (index[~stands_out] == -1).all()
+
+
+# --- the family runner, through the command line ---------------------------------------------
+
+
+def test_seeds_parse_as_ranges_and_lists():
+    assert parse_seeds("1000-1003") == (1000, 1001, 1002, 1003)
+    assert parse_seeds("0,2,5-6,2") == (0, 2, 5, 6)
+    with pytest.raises(Exception, match="is not seeds"):
+        parse_seeds("5-3")
+
+
+def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
+    tmp_path, capsys, monkeypatch
+):
+    work, out = tmp_path / "work", tmp_path / "out"
+    code = main(["evaluate", "--scene", "conveyor", "--seeds", "0-1", "--frames", "20",
+                 "--work", str(work), "--out", str(out), "--workers", "2"])  # fmt: skip
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    doc = json.loads((out / "evaluation.json").read_text())
+    assert [line["seed"] for line in doc["lines"]] == [0, 1]
+    for line in doc["lines"]:
+        assert line["frames"] == 20
+        assert line["error"] is None
+        assert line["scene"].startswith("conveyor, belt 0.25 m/s")
+        for tracker in ("tofcut", "baseline"):
+            scores = line["runs"][tracker]["scores"]
+            assert {"by_centroid", "by_iou", "mask_iou", "mota", "idf1"} <= set(scores)
+            assert scores["frames"] == 20
+    assert [a["tracker"] for a in doc["aggregate"]] == ["tofcut", "baseline"]
+    assert all(a["lines"] == 2 and a["by_iou"]["median_mota"] <= 1 for a in doc["aggregate"])
+    md = (out / "evaluation.md").read_text()
+    assert "| tofcut − baseline |" in md
+    assert md in printed
+    # the captures are recorded --bare, their truth beside them, and the trackers' outputs
+    # score the same through `evaluate`
+    seed0 = work / "conveyor" / "seed-0"
+    assert set(CaptureReader(seed0 / "capture.tofcap").capture.metadata) == set(CAMERA_KEYS)
+    assert len(load_truth(seed0 / "capture.truth.npz")) == 20
+    js = tmp_path / "one.json"
+    assert main(["evaluate", str(seed0 / "capture.tofcap"), "--tracks",
+                 str(seed0 / "baseline.tracks.jsonl"), "--masks",
+                 str(seed0 / "baseline.masks.npz"), "--json", str(js)]) == 0  # fmt: skip
+    assert "by mask IoU >= 0.5: MOTA" in capsys.readouterr().out
+    assert json.loads(js.read_text())["by_iou"] == doc["lines"][0]["runs"]["baseline"][
+        "scores"]["by_iou"]  # fmt: skip
+
+    # again, with a tracker that hands back the baseline's outputs (a command like any
+    # other): seed 0's capture is reused and scores the same, seed 1's (its truth lost) is
+    # recorded anew
+    copy = "import shutil, sys; shutil.copy(sys.argv[1], sys.argv[3]); shutil.copy(*sys.argv[2::2])"
+
+    def replay(cap, tracks, masks):
+        done = [cap.parent / "baseline.tracks.jsonl", cap.parent / "baseline.masks.npz"]
+        return [sys.executable, "-c", copy, str(done[0]), str(done[1]), str(tracks), str(masks)]
+
+    monkeypatch.setitem(family.COMMANDS, "replay", replay)
+    kept = (seed0 / "capture.tofcap").stat().st_mtime_ns
+    (work / "conveyor" / "seed-1" / "capture.truth.npz").unlink()
+    code = main(["evaluate", "--scene", "conveyor", "--seeds", "0-1", "--frames", "20",
+                 "--work", str(work), "--trackers", "replay", "--json", str(js)])  # fmt: skip
+    assert code == 0
+    assert (seed0 / "capture.tofcap").stat().st_mtime_ns == kept
+    assert (work / "conveyor" / "seed-1" / "capture.truth.npz").is_file()
+    again = json.loads(js.read_text())["lines"][0]["runs"]["replay"]["scores"]
+    assert again == doc["lines"][0]["runs"]["baseline"]["scores"]
+    assert "replay MOTA" in capsys.readouterr().out
+
+    # a line that cannot be made is reported with its seed and error, and fails the run
+    code = main(["evaluate", "--scene", "no-such-scene-{seed}", "--seeds", "3", "--frames",
+                 "5", "--work", str(work), "--json", str(tmp_path / "bad.json")])  # fmt: skip
+    printed = capsys.readouterr()
+    assert code == 1
+    assert "seed 3 (emulator:no-such-scene-3): no scene 'no-such-scene-3'" in printed.out
+    assert "1 of 1 lines failed" in printed.err
+    bad = json.loads((tmp_path / "bad.json").read_text())
+    assert bad["failed"][0]["seed"] == 3
+
+
+def test_bad_evaluate_arguments_are_one_line_errors(capsys):
+    assert main(["evaluate", "--scene", "conveyor"]) == 1
+    assert "needs --seeds" in capsys.readouterr().err
+    assert main(["evaluate"]) == 1
+    assert "evaluate needs CAPTURE" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--family", "conveyor", "--seeds", "9-1"])
+    assert "is not seeds" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--scene", "conveyor", "--seeds", "1", "--trackers", "magic"])

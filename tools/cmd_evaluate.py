@@ -1,4 +1,4 @@
-"""`tofcut evaluate CAPTURE --tracks T.jsonl --masks M.npz`: score a run against ground truth.
+"""`tofcut evaluate`: score a run against the emulator's ground truth, or a family of lines.
 
 `tofcut evaluate CAPTURE --tracks T.jsonl --masks M.npz` scores one run. The truth is the
 emulator's (`CAPTURE.truth.npz`, written by `tofcut record emulator:...`). Tracks are
@@ -10,6 +10,10 @@ printed is the centroid matching's, as it always was; the second adds the IoU ma
 `--per-object` adds, for every object, the view from its masks alone (no gate): in how many
 of its frames a track held most of it, which tracks those were, and its mean mask IoU with
 that track over all its frames (0 where none held it): "kept one id in every frame".
+
+`tofcut evaluate --family NAME --seeds A-B` (or `--scene PATTERN --seeds A-B`) records,
+tracks and scores a line per seed (`tofcut.tools.family`): what a tracker does on lines it
+was not tuned on, beside a baseline.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
+from tofcut.tools import family
 from tofcut.tools.scoring import GATE_M, MIN_IOU, MIN_PIXELS, STATIC_M, VISITS, evaluate, read_run
 from tofcut.tools.sources import SourceError
 
@@ -42,6 +47,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--per-object", action="store_true", help="also a line per object (masks)")
     p.add_argument("--json", type=Path, help="also write every number here")
+    family.add_family_options(p)
     p.set_defaults(func=run)
 
 
@@ -93,8 +99,15 @@ def per_object(
 
 
 def run(args: argparse.Namespace) -> int:
+    if family.wants_family(args):
+        if args.capture or args.tracks or args.masks:
+            raise SourceError("give either CAPTURE --tracks --masks, or --family/--scene, not both")
+        return family.run(args)
     if args.capture is None or args.tracks is None or args.masks is None:
-        raise SourceError("evaluate needs CAPTURE --tracks FILE.jsonl --masks FILE.npz")
+        raise SourceError(
+            "evaluate needs CAPTURE --tracks FILE.jsonl --masks FILE.npz "
+            "(or --family NAME / --scene NAME with --seeds)"
+        )
     if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0 or args.min_pixels < 1:
         raise SourceError("--min-iou must be in (0, 1], --gate > 0 and --min-pixels >= 1")
     files = read_run(args.capture, args.tracks, args.masks)
