@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -68,6 +69,20 @@ def capture_metadata(info: DeviceInfo, registers: dict[str, int], **extra: Any) 
         "registers": registers,
         **extra,
     }
+
+
+CAMERA_KEYS = ("serial", "firmware", "protocol", "width", "height", "max_fps", "registers")
+"""The metadata a camera itself gives a capture: what `capture_metadata` holds without extras."""
+
+
+def bare_metadata(metadata: dict[str, Any]) -> dict[str, Any]:
+    """Only the camera's own keys of a capture's metadata, as a real camera's capture has them.
+
+    An emulated camera's recorder adds what a real camera never tells (the scene, its belt's
+    geometry and speed, a marked target, the source's name); a tracker evaluated on captures
+    that carry them can lean on them. Dropping them leaves nothing but the camera's stream.
+    """
+    return {key: metadata[key] for key in CAMERA_KEYS if key in metadata}
 
 
 class CaptureWriter:
@@ -253,3 +268,20 @@ class CaptureReader:
         tb: TracebackType | None,
     ) -> None:
         self.close()
+
+
+def bare_copy(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> int:
+    """Copy a capture with only the camera's metadata (`bare_metadata`); returns its frames.
+
+    The calibration block and every record are copied byte for byte, so the copy replays
+    the same frames; a cut-short tail is copied as it is (the reader skips it as before).
+    """
+    if Path(source).resolve() == Path(target).resolve():
+        raise CaptureError(f"a bare copy must go to another file than {source}")
+    reader = CaptureReader(source)
+    meta = bare_metadata(reader.capture.metadata)
+    calib = reader.capture.calibration_block
+    with open(reader.path, "rb") as src, CaptureWriter(target, meta, calib) as out:
+        src.seek(reader._records_start)  # this module's own reader and writer
+        shutil.copyfileobj(src, out._file)
+    return len(reader)

@@ -5,6 +5,10 @@ scene's: `belt` and `belt_source`); with a conveyor linked (`--conveyor PORT`,
 `--conveyor-emulator`), its encoder readings go to a conveyor log beside the capture
 (`run.conveyor.jsonl`, `tofcut.driver.belt_log`), so that `tofcut track run.tofcap` replays
 the belt prior the live run had.
+
+`--bare` records as a real camera would: the capture's metadata holds only the camera's own
+keys (`tofcut.driver.capture.CAMERA_KEYS`), so what is tracked or evaluated from it cannot
+lean on the emulator's knowledge of the scene; the ground truth still goes beside it.
 """
 
 from __future__ import annotations
@@ -17,7 +21,7 @@ from typing import Any
 
 from tofcut.driver.belt_log import BeltLogWriter, belt_log_path
 from tofcut.driver.camera import Camera
-from tofcut.driver.capture import CaptureWriter, capture_metadata
+from tofcut.driver.capture import CaptureWriter, bare_metadata, capture_metadata
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
@@ -41,6 +45,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--reconnect", action="store_true",
         help="record through unplugs, stalls and hangs (default: stop at the first, with an "
         "error); the closing lines say what was lost",
+    )  # fmt: skip
+    p.add_argument(
+        "--bare", action="store_true",
+        help="keep only what the camera itself tells (serial, firmware, registers, ...), as a "
+        "real camera's capture has it: no scene, belt or target; the emulator's ground truth "
+        "is still written beside the capture",
     )  # fmt: skip
     add_camera_options(p)
     add_conveyor_options(p, rejects=False)
@@ -83,6 +93,8 @@ def run(args: argparse.Namespace) -> int:
         meta = capture_metadata(
             cam.info, registers, source=str(args.source), **belt_metadata(opened, resolution)
         )
+        if args.bare:
+            meta = bare_metadata(meta)
         log, line = _open_line(args, opened, resolution)
         try:
             cam_stats, elapsed, truths = _record(args, opened, cam, meta, frames_wanted, seconds)
