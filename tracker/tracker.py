@@ -647,10 +647,12 @@ class Tracker:
                 assert box is not None
                 pts = held[starts[k] : starts[k + 1]]
                 entering = _on_border(box, labels.shape)
-                if pieces is not None and (entering or not p.rigid):
-                    # an object coming into view is bigger than its mask, and one that need
-                    # not be rigid (a person) may have moved a limb where its
-                    # prediction did not reach: what stands out right beside it is the rest
+                if pieces is not None:
+                    # what stands out right beside a track and goes on from its surface is
+                    # more of it: an object coming into view is bigger than its mask, one
+                    # first seen in part (a bag's rounded rim, a roll's far end) bigger than
+                    # its shape, and a person may have moved a limb where its prediction
+                    # did not reach
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
                     # across a 3D step, what stands out lies past the seam the step leaves
