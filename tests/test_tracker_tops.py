@@ -10,7 +10,7 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tracker import kernels
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tops import facing_up, split_by_tops
+from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 
 
 def _pair(first_h: float, second_h: float, side_by_side: bool) -> SceneSource:
@@ -58,3 +58,21 @@ def test_flush_boxes_of_one_height_stay_one_piece():
     # range cannot tell them apart: no guess
     pieces, _ = _split(_pair(0.15, 0.15, True))
     assert pieces.max() == 1
+
+
+def test_two_faces_of_one_box_are_one_object_and_two_boxes_are_not():
+    source = _pair(0.12, 0.18, True)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    belt = source.belt.geometry
+    noise = range_noise(frame, 0.004)
+    body = (truth.labels > 0) & frame.valid
+    up = facing_up(body, frame.xyz, noise, belt)
+    # the two boxes, each a track: tops at different heights, never one object
+    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
+    assert one_object(boxes, frame.xyz, up, belt, 0.02) == []
+    # one box held as two tracks, its top and its sides: one object
+    tall = body & (truth.labels == 2)
+    faces = np.zeros(body.shape, np.uint16)
+    faces[tall & up] = 1
+    faces[tall & ~up] = 2
+    assert one_object(faces, frame.xyz, up, belt, 0.02) == [(1, 2)]

@@ -28,6 +28,10 @@ MAX_SLOPE = 0.5
 MIN_TOP_STEP_M = 0.02
 """Two tops of one piece nearer in height than this (or than three times the noise of their
 mean heights) are one object's top broken up by noise."""
+MIN_SEAM = 6
+"""Neighbour pairs two masks must meet along to be faces of one object."""
+MIN_TOP = 20
+"""Pixels facing up that make a top."""
 MAX_SLOPE_NOISE = 0.2
 """Where the noise of the measured slope is more than this (a flat top would read steep
 one time in a hundred), no surface is told facing up."""
@@ -95,3 +99,45 @@ def split_by_tops(
     if out.min() > 0:
         rank += 1
     return rank[inverse].reshape(pieces.shape).astype(np.int32)
+
+
+def one_object(
+    labels: npt.NDArray[np.uint16], xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
+) -> list[tuple[int, int]]:
+    """Pairs of labels (smaller first) whose masks meet along a seam where most neighbours
+    across it are within `joined_m` in 3D (one surface going on, no step) and which do not
+    hold tops at heights apart by `MIN_TOP_STEP_M` (`up`: the pixels facing up; None, as
+    where the noise hides the slope, tells no tops): two tracks holding faces of one object."""
+    pairs: dict[tuple[int, int], list[int]] = {}
+    for first, second in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
+        a, b = labels[first], labels[second]
+        meet = (a != b) & (a > 0) & (b > 0)
+        if not meet.any():
+            continue
+        gap = np.linalg.norm(xyz[first][meet] - xyz[second][meet], axis=-1)
+        lo, hi = np.minimum(a[meet], b[meet]), np.maximum(a[meet], b[meet])
+        for x, y, g in zip(lo.tolist(), hi.tolist(), (gap <= joined_m).tolist(), strict=True):
+            counts = pairs.setdefault((x, y), [0, 0])
+            counts[0] += 1
+            counts[1] += int(g)
+    out = []
+    for (x, y), (meet_n, joined_n) in pairs.items():
+        if meet_n < MIN_SEAM or joined_n * 2 < meet_n:
+            continue
+        if up is not None:
+            hx, hy = (
+                _top_height(labels == x, up, xyz, belt),
+                _top_height(labels == y, up, xyz, belt),
+            )
+            if hx is not None and hy is not None and abs(hx - hy) >= MIN_TOP_STEP_M:
+                continue
+        out.append((x, y))
+    return out
+
+
+def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
+    """The median height of a mask's pixels facing up, if it has `MIN_TOP` of them."""
+    top = mask & up
+    if np.count_nonzero(top) < MIN_TOP:
+        return None
+    return float(np.median(belt.height(xyz[top])))

@@ -35,7 +35,7 @@ from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tops import facing_up, split_by_tops
+from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 F64 = npt.NDArray[np.float64]
@@ -263,6 +263,8 @@ class Tracker:
         self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
         self._next_id = 1
         self._last_time_us: int | None = None
+        self._joining: dict[tuple[int, int], int] = {}
+        """Pairs of tracks seen as faces of one object, and for how many frames running."""
         self._sorted: dict[int, tuple[F64, F64, int]] = {}
         """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
         kernels.warm_up()
@@ -631,6 +633,7 @@ class Tracker:
         ended: list[int] = []
         keep: list[_Live] = []
         born = self._reconcile(frame, labels, noise)
+        ended += self._join(frame, labels, noise)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels, noise) if ready else None
         # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
@@ -706,6 +709,35 @@ class Tracker:
         if pieces is not None:
             born += self._detect(frame, pieces, labels, noise)
         return born, ended
+
+    def _join(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
+        """Rigid objects on a known belt: two tracks whose masks meet with no step between
+        them and no two tops at different heights (`tops.one_object`) for `split_frames`
+        frames running hold faces of one object (its side seen first, a rim, the far end
+        of a roll): the younger is handed to the older. Changes `labels`; the ids ended."""
+        p = self.params
+        if not p.rigid or self.belt is None or len(self._tracks) < 2:
+            self._joining = {}
+            return []
+        up = facing_up(labels > 0, frame.xyz, noise, self.belt)
+        pairs = one_object(labels, frame.xyz, up, self.belt, p.joined_m)
+        self._joining = {pair: self._joining.get(pair, 0) + 1 for pair in pairs}
+        ended: list[int] = []
+        for (older, younger), frames in sorted(self._joining.items()):
+            if frames < p.split_frames or older in ended or younger in ended:
+                continue
+            keep = next(t for t in self._tracks if t.id == older)
+            self._tracks = [t for t in self._tracks if t.id != younger]
+            labels[labels == younger] = older
+            ended.append(younger)
+            pts = frame.xyz[labels == older]
+            # what it holds now is a new view of it: its state starts again from this view
+            keep.filter = ConstantVelocity(pts.mean(axis=0), p.motion, keep.filter.velocity)
+            keep.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
+            keep.cloud = _subsample(pts, p.cloud_points)
+            keep.usual_pixels = 0.0
+        self._joining = {k: v for k, v in self._joining.items() if not set(k) & set(ended)}
+        return ended
 
     def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
         """Deal the surfaces out again where a track has held two for `split_frames` frames
