@@ -41,6 +41,7 @@ from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
 from tofcut.tools.run_belt import RunBelt
 from tofcut.tools.sources import Opened, SourceError, open_source, scene_target
 from tofcut.tools.status import PipelineStatus
+from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker, TrackerParams
 from tofcut.tracker.tracks import TrackedFrame
@@ -185,6 +186,9 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         raise
     try:
         run_belt = RunBelt(resolution, tracker, line=line, replay=replay)
+        if belt is None and not args.deformable:
+            # nothing gave a belt: it is found from the frames (a person is not on one)
+            run_belt.find(BeltFinder())
         direction = belt.geometry.direction if belt else None
         sink = RerunSink.from_args(
             args, device.calibration, direction, name=f"tofcut {args.source}"
@@ -214,6 +218,9 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
     say(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
     say(sink.summary())
     say(run_belt.describe())
+    found = run_belt.describe_found()
+    if found is not None:
+        say(found)
     if replay is not None:
         say(replay.summary())
     if line is not None:

@@ -4,7 +4,7 @@ start and whenever a belt becomes known during the run.
 
     run_belt = RunBelt(resolution, tracker, line=line)          # live, or replay=ReplayedLink
     run(..., prior=run_belt.at_frame)                           # the pipeline, every frame
-    run_belt.finder = lambda frame: finder.update(frame).belt  # a belt finder plugs in here
+    run_belt.find(BeltFinder())                                 # where nothing gave a belt
     run_belt.offer(found)                                       # or from anywhere, any thread
     print(run_belt.describe())                                  # "belt: from the map (...)"
 
@@ -29,6 +29,7 @@ from tofcut.tools.belt_source import (
     warn,
 )
 from tofcut.tools.conveyor_options import ConveyorLine
+from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior, belt_velocity_prior, known_speed_prior
 from tofcut.tracker.tracker import Tracker
 
@@ -71,6 +72,7 @@ class RunBelt:
         self.line = line
         self.replay = replay
         self.log = log
+        self._found_by: BeltFinder | None = None
         self.finder: Callable[[Frame], KnownBelt | None] | None = None
         """Called with every frame before it is tracked; a belt it returns is offered."""
         self._say = say
@@ -160,6 +162,32 @@ class RunBelt:
                 self.line.rejects.set_belt(geometry)
         if self.log is not None:
             self.log.belt(belt, frame.host_time_ns)
+
+    def find(self, finder: BeltFinder) -> None:
+        """Look for the belt in the run's own frames (where nothing gave one): the finder's
+        plane is offered as soon as it has one, again once it knows the travel, and once
+        more when it is done; `describe_found` says how well it fits."""
+        self._found_by = finder
+        offered: list[tuple[bool, bool]] = []
+
+        def found(frame: Frame) -> KnownBelt | None:
+            belt = finder.update(frame).belt
+            if belt is None:
+                return None
+            state = (belt.speed_mps is not None, finder.done)
+            if offered and offered[-1] == state:
+                return None
+            offered.append(state)
+            return belt
+
+        self.finder = found
+
+    def describe_found(self) -> str | None:
+        """What the belt finder found and how well it fits, if the run looked for the belt."""
+        finder = self._found_by
+        if finder is None:
+            return None
+        return "found " + finder.finish().describe()
 
     def describe(self) -> str:
         """The closing line: where the belt came from, and where the prior did."""
