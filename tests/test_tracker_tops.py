@@ -76,3 +76,12 @@ def test_two_faces_of_one_box_are_one_object_and_two_boxes_are_not():
     faces[tall & up] = 1
     faces[tall & ~up] = 2
     assert one_object(faces, frame.xyz, up, belt, 0.02) == [(1, 2)]
+
+
+def test_two_objects_pressed_together_meet_at_a_crease_even_without_tops():
+    # no tops to tell them apart (as where the noise hides the slope): the crease does
+    source = _pair(0.12, 0.18, True)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    body = (truth.labels > 0) & frame.valid
+    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
+    assert one_object(boxes, frame.xyz, None, source.belt.geometry, 0.02) == []

@@ -4,7 +4,9 @@ Seen from above and to one side, a tall box's side face runs on into the top of 
 pressed against it with no step in range, so a cut at 3D steps keeps the two as one piece.
 Their tops do not touch: between them stands the side face, which does not face up. A piece
 holding two tops of its own at different heights is two objects; its pixels are dealt out to
-the tops.
+the tops (`split_by_tops`). The other way round, two tracks that meet with no step and hold no
+two tops at different heights are faces of one object (`one_object`). Range cannot part two
+objects of one height pressed flush together: they stay one.
 """
 
 from __future__ import annotations
@@ -30,6 +32,11 @@ MIN_TOP_STEP_M = 0.02
 mean heights) are one object's top broken up by noise."""
 MIN_SEAM = 6
 """Neighbour pairs two masks must meet along to be faces of one object."""
+SEAM_SAMPLES = 24
+"""Pairs along a seam whose surfaces are compared (evenly spread)."""
+CONCAVE = 0.2
+"""A seam bends inwards where the convexity criterion is below minus this (about 0.7 across a
+right-angled crease, near 0 on a flat surface read in noise)."""
 MIN_TOP = 20
 """Pixels facing up that make a top."""
 MAX_SLOPE_NOISE = 0.2
@@ -109,21 +116,30 @@ def one_object(
     hold tops at heights apart by `MIN_TOP_STEP_M` (`up`: the pixels facing up; None, as
     where the noise hides the slope, tells no tops): two tracks holding faces of one object."""
     pairs: dict[tuple[int, int], list[int]] = {}
-    for first, second in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
+    seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
+    h, w = labels.shape
+    for dv, du in ((0, 1), (1, 0)):
+        first, second = np.s_[: h - dv, : w - du], np.s_[dv:, du:]
         a, b = labels[first], labels[second]
         meet = (a != b) & (a > 0) & (b > 0)
         if not meet.any():
             continue
         gap = np.linalg.norm(xyz[first][meet] - xyz[second][meet], axis=-1)
-        lo, hi = np.minimum(a[meet], b[meet]), np.maximum(a[meet], b[meet])
-        for x, y, g in zip(lo.tolist(), hi.tolist(), (gap <= joined_m).tolist(), strict=True):
-            counts = pairs.setdefault((x, y), [0, 0])
+        rows, cols = np.nonzero(meet)
+        for v, u, g in zip(rows.tolist(), cols.tolist(), (gap <= joined_m).tolist(), strict=True):
+            x, y = int(labels[v, u]), int(labels[v + dv, u + du])
+            key = (min(x, y), max(x, y))
+            counts = pairs.setdefault(key, [0, 0])
             counts[0] += 1
             counts[1] += int(g)
+            if g:
+                seams.setdefault(key, []).append((v, u, v + dv, u + du))
     out = []
     for (x, y), (meet_n, joined_n) in pairs.items():
         if meet_n < MIN_SEAM or joined_n * 2 < meet_n:
             continue
+        if not _convex(labels, xyz, seams[(x, y)]):
+            continue  # a crease: two objects pressed together
         if up is not None:
             hx, hy = (
                 _top_height(labels == x, up, xyz, belt),
@@ -141,3 +157,36 @@ def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
     if np.count_nonzero(top) < MIN_TOP:
         return None
     return float(np.median(belt.height(xyz[top])))
+
+
+def _convex(
+    labels: npt.NDArray[np.uint16], xyz: F64, seam: list[tuple[int, int, int, int]]
+) -> bool:
+    """Whether two masks meet at a convex edge along `seam` (pairs of neighbouring pixels,
+    one in each): the convexity criterion of locally convex connected patches (Stein et al.,
+    in PCL), (n₁ − n₂)·(c₁ − c₂) ≥ 0 for the normals and centroids of each side's surface
+    round the pair, in most of the pairs looked at. A box's faces meet at convex edges, two
+    objects pressed together at a concave crease."""
+    step = max(1, len(seam) // SEAM_SAMPLES)
+    votes = []
+    for v1, u1, v2, u2 in seam[::step]:
+        sides = []
+        for v, u in ((v1, u1), (v2, u2)):
+            win = np.s_[max(v - 2, 0) : v + 3, max(u - 2, 0) : u + 3]
+            pts = xyz[win][labels[win] == labels[v, u]]
+            pts = pts[np.isfinite(pts).all(axis=1)]
+            if len(pts) < 4:
+                break
+            centre = pts.mean(axis=0)
+            normal = np.linalg.svd(pts - centre, full_matrices=False)[2][2]
+            if normal @ centre > 0:
+                normal = -normal  # towards the camera
+            sides.append((centre, normal))
+        if len(sides) == 2:
+            (c1, n1), (c2, n2) = sides
+            gap = float(np.linalg.norm(c1 - c2))
+            if gap > 0:
+                votes.append(float((n1 - n2) @ (c1 - c2)) / gap)
+    if not votes:
+        return True
+    return float(np.median(votes)) >= -CONCAVE
