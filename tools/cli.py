@@ -23,6 +23,7 @@ COMMANDS = [
     "tofcut.tools.cmd_convert",
     "tofcut.tools.cmd_live",
     "tofcut.tools.cmd_track",
+    "tofcut.tools.cmd_calibrate",
     "tofcut.tools.cmd_evaluate",
     "tofcut.tools.cmd_scenes",
     "tofcut.tools.cmd_reproduce",

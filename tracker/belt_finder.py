@@ -67,7 +67,7 @@ class FinderParams:
     """A layer holds at least this share of the valid pixels."""
     min_band_m: float = 0.015
     """A point is on a plane within 2 of its noise sigmas, and at least this..."""
-    max_band_m: float = 0.05
+    max_band_m: float = 0.03
     """...and at most this."""
     max_sigma_m: float = 0.05
     """Pixels noisier than this (far, dark, grazing) take no part in finding the plane."""
@@ -77,6 +77,9 @@ class FinderParams:
     """A layer whose border is more drops than rises is a top, not a support..."""
     min_span_m: float = 0.2
     """...unless it runs across the view and is at least this wide (a belt; a rail is not)."""
+    min_support_share: float = 0.2
+    """A support holding less than this share of the largest support's pixels, and not
+    running across the view, is not the belt (a box top between taller ones)."""
     top_height_m: float = 0.05
     """The tops followed stand at least this far above the belt (a low rim does not)."""
     top_tilt_deg: float = 25.0
@@ -135,8 +138,9 @@ class FinderParams:
             raise ValueError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
         if not 0 < self.top_tilt_deg < 90:
             raise ValueError("top_tilt_deg must be in (0, 90)")
-        if not 0 < self.min_layer_share < 1 or not 0 < self.island_share < 1:
-            raise ValueError("min_layer_share and island_share must be in (0, 1)")
+        shares = (self.min_layer_share, self.island_share, self.min_support_share)
+        if not all(0 < x < 1 for x in shares):
+            raise ValueError("min_layer_share, island_share, min_support_share: in (0, 1)")
         positive = (
             self.layer_bin_m, self.min_band_m, self.max_band_m, self.max_sigma_m, self.drop_m,
             self.min_span_m, self.top_reach_m, self.top_below_m, self.top_height_m,
@@ -215,7 +219,10 @@ class TravelFit:
     """(2,) unit, in the plane's basis."""
     speed_mps: float
     direction_spread_deg: float
+    """How much the tops disagree on the direction (1.4826 × their median absolute deviation:
+    a standard deviation where they scatter normally)."""
     speed_spread_mps: float
+    """The same for their speeds along the direction."""
     segments: int
     seconds: float
     """Followed-top time that voted (summed)."""
@@ -455,14 +462,23 @@ def drop_share(heights: F64, reach: F64, ok: B, layer: B) -> float:
 
 
 def choose_belt(layers: list[Layer], params: FinderParams) -> int | None:
-    """Index of the belt among the layers: the nearest support (not an island) holding its
-    share of the pixels; failing that, the largest layer; None when there are no layers."""
+    """Index of the belt among the layers: the nearest support (not an island) that is large
+    beside the largest support (or runs across the view); failing any support, the largest
+    layer; None when there are no layers."""
     if not layers:
         return None
     supports = [i for i, lay in enumerate(layers) if lay.supports(params)]
-    if supports:
-        return max(supports, key=lambda i: layers[i].plane.offset_m)  # nearest: least far
-    return max(range(len(layers)), key=lambda i: layers[i].pixels)
+    if not supports:
+        return max(range(len(layers)), key=lambda i: layers[i].pixels)
+    most = max(layers[i].pixels for i in supports)
+    # a box top hemmed in by taller boxes can look like a support; it is small beside the
+    # belt (and the floor), and does not run across the view
+    large = [
+        i for i in supports
+        if layers[i].pixels >= params.min_support_share * most
+        or layers[i].span_m >= params.min_span_m
+    ]  # fmt: skip
+    return max(large, key=lambda i: layers[i].plane.offset_m)  # the nearest: least far
 
 
 def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[Layer]:
@@ -779,8 +795,10 @@ def travel_from(segments: list[Segment], params: FinderParams) -> TravelFit | No
     return TravelFit(
         direction,
         speed,
-        math.degrees(weighted_median(np.abs(angles - turn), w)),
-        weighted_median(np.abs(along - speed), w),
+        # how much the tops disagree, each counting once (a weighted spread would be that of
+        # the one top that holds most of the weight: nothing)
+        math.degrees(MAD_TO_SIGMA * float(np.median(np.abs(angles - turn)))),
+        MAD_TO_SIGMA * float(np.median(np.abs(along - speed))),
         len(moving),
         float(sum(s.seconds for s in moving)),
         max(s.seconds for s in moving),
