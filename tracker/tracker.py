@@ -197,16 +197,27 @@ def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
     )
 
 
-def _beside(
-    pieces: npt.NDArray[np.int32], mask: B, box: tuple[slice, slice], reach: int = 1
-) -> I32:
-    """`pieces[binary_dilation(mask, _EIGHT, reach)]`, from the mask's box and `reach`
-    pixels around it."""
-    rows = slice(max(box[0].start - reach, 0), box[0].stop + reach)
-    cols = slice(max(box[1].start - reach, 0), box[1].stop + reach)
-    ring = ndimage.binary_dilation(mask[rows, cols], _EIGHT, iterations=reach)
-    out: I32 = pieces[rows, cols][ring]
-    return out
+def _touching_pieces(
+    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], reach: int
+) -> dict[int, npt.NDArray[np.int32]]:
+    """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
+    its mask: `pieces[binary_dilation(labels == id, _EIGHT, reach)]`, for all tracks at
+    once."""
+    h, w = labels.shape
+    found = []
+    for dv in range(-reach, reach + 1):
+        for du in range(-reach, reach + 1):
+            here = labels[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)]
+            there = pieces[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
+            both = (here > 0) & (there > 0)
+            if both.any():
+                found.append(here[both].astype(np.int64) << 32 | there[both].astype(np.int64))
+    if not found:
+        return {}
+    pairs = np.unique(np.concatenate(found))
+    ids, rows = np.unique(pairs >> 32, return_index=True)
+    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
+    return dict(zip(ids.tolist(), groups, strict=True))
 
 
 def _subsample(points: F64, n: int) -> F64:
@@ -636,6 +647,9 @@ class Tracker:
         ended += self._join(frame, labels, noise)
         ready = self.background is not None and self.background.ready
         pieces = self._loose(frame, labels, noise) if ready else None
+        # across a 3D step, what stands out lies past the seam the step leaves
+        seam = 1 if p.rigid else 2
+        touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
         # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
         corners, starts, held = kernels.label_points(
             labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
@@ -650,7 +664,7 @@ class Tracker:
                 assert box is not None
                 pts = held[starts[k] : starts[k + 1]]
                 entering = _on_border(box, labels.shape)
-                if pieces is not None:
+                if pieces is not None and t.id in touching:
                     # what stands out right beside a track and goes on from its surface is
                     # more of it: an object coming into view is bigger than its mask, one
                     # first seen in part (a bag's rounded rim, a roll's far end) bigger than
@@ -658,13 +672,10 @@ class Tracker:
                     # did not reach
                     whole_mask = np.zeros(labels.shape, bool)
                     whole_mask[box] = mask
-                    # across a 3D step, what stands out lies past the seam the step leaves
-                    seam = 1 if self.params.rigid else 2
-                    near = np.unique(_beside(pieces, whole_mask, box, seam))
                     if piece_boxes is None:
                         piece_boxes = ndimage.find_objects(pieces)
                     beside = self._continuing(
-                        frame, whole_mask, pieces, near[near > 0], piece_boxes
+                        frame, whole_mask, pieces, touching[t.id], piece_boxes
                     )
                     if beside.size:
                         seen = whole_mask | np.isin(pieces, beside)
