@@ -22,7 +22,7 @@ from tofcut.tools.sources import SourceError, SourceSpec, open_source
 from tofcut.tools.toml_writer import dumps
 from tofcut.tracker.belt_finder import BeltEstimate, find_belt
 
-DEFAULT_SECONDS = 3.0
+DEFAULT_SECONDS = 20.0
 
 
 class CalibrationError(TofcutError):

@@ -118,9 +118,10 @@ class FinderParams:
     """...once this many seconds of frames are in..."""
     max_s: float = 3.0
     """...or seconds of frames, once the travel is trusted."""
-    patience_s: float = 3.0
-    """Seconds of frames with no moving top after which there is no travel direction..."""
-    give_up_s: float = 10.0
+    patience_s: float = 20.0
+    """Seconds of frames with no moving top after which there is no travel direction (a line
+    that starts empty may show its first object some seconds in)..."""
+    give_up_s: float = 20.0
     """...and with tops moving, but not enough to trust, after which the travel is unsure."""
     min_shift_m: float = 0.02
     """A top that went this far has moved (less is the noise of a still one)."""
