@@ -9,10 +9,14 @@ its predicted surface (so two touching objects are told apart), and its cost for
 background with how far it stands out in front of the empty-scene range model. Pixels no
 track can win whatever their neighbours do are fixed to the background before the cut, so
 the graph holds only the pixels that matter. What stands out and no track can claim, two
-frames running, becomes a new track. On a belt, a track holding two touching surfaces for a
-few frames has them dealt out again (two objects that came into view as one), and one that
+frames running, becomes a new track. Rigid objects on a belt: a track holding two touching
+surfaces (a step apart, or two tops at different heights: `tofcut.tracker.tops`) for a few
+frames has them dealt out again (two objects that came into view as one), two tracks that
+meet at a convex edge with no step are faces of one object and become one, and a track that
 stays put while the belt runs becomes scenery. Each pixel's range noise
-(`tofcut.tracker.noise`) scales what counts as near on far, dark targets.
+(`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
+(`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
+holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
 """
 
 from __future__ import annotations
