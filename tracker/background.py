@@ -9,7 +9,6 @@ out to be farther than thought (an object that stood still at the start and then
 
 from __future__ import annotations
 
-import math
 import warnings
 from dataclasses import dataclass
 
@@ -33,11 +32,11 @@ BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
 MEDIAN_NOISE_SHARE = 0.418
 """Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
-MAX_OBJECT_M = 0.8
-"""Longest object on a belt, in the belt's plane: what stands on it while the scenery is
-learned and is longer (a rail, a guide, a gantry) is part of the machine."""
-MAX_ELONGATION = 4.0
-"""...and one this many times longer than it is wide that runs out of the view is one too."""
+MAX_RAIL_M = 0.1
+"""Where the belt's width is not known, what stands on its plane while the scenery is learned
+and is narrower than this..."""
+MIN_RAIL_M = 0.5
+"""...and longer than this is a rail or a guide beside the belt: it stays scenery."""
 BEHIND_BELT_M = 0.3
 """Scenery read this much farther than the belt or more is not the belt (the floor beside a
 belt whose width is not known, a leg of its stand)."""
@@ -215,17 +214,18 @@ class BackgroundModel:
 
 
 def _objects_only(above: B, points: F64, belt: BeltGeometry) -> B:
-    """The parts of `above` (scenery standing on the belt) that could be objects: not those
-    longer than `MAX_OBJECT_M` in the belt's plane, nor long thin ones running out of the
-    view (a rail, a guide or a gantry along or across the belt, which stays scenery)."""
-    # a rail's pixels are broken up by noise and by what stands in front of it: bridged
-    near = ndimage.binary_dilation(above, np.ones((3, 3), bool), iterations=2)
+    """The parts of `above` (scenery standing on the belt) that could be objects: where the
+    belt's width is not known, not a rail or a guide beside it (narrower than `MAX_RAIL_M`,
+    longer than `MIN_RAIL_M` in the belt's plane), which stays scenery. Where the width is
+    known, what stands beside the belt is not over it anyway."""
+    if belt.width_m is not None:
+        return above
+    # a rail's pixels are broken up by noise: bridged
+    near = ndimage.binary_dilation(above, np.ones((3, 3), bool))
     parts, n = ndimage.label(near, np.ones((3, 3), bool))
     parts = np.where(above, parts, 0)
-    keep = np.zeros(n + 1, bool)
-    boxes = ndimage.find_objects(parts)
-    h, w = above.shape
-    for k, box in enumerate(boxes, start=1):
+    keep = np.ones(n + 1, bool)
+    for k, box in enumerate(ndimage.find_objects(parts), start=1):
         if box is None:
             continue
         mine = parts[box] == k
@@ -233,11 +233,10 @@ def _objects_only(above: B, points: F64, belt: BeltGeometry) -> B:
         flat = flat[:, np.isfinite(flat).all(axis=0)]
         if flat.shape[1] < 3:
             continue
-        spread = np.sort(np.linalg.eigvalsh(np.cov(flat)))
-        length = 4.0 * math.sqrt(max(spread[1], 0.0))  # ±2σ of a uniform bar is most of it
-        thin = spread[1] > (MAX_ELONGATION**2) * max(spread[0], 1e-12)
-        out_of_view = box[0].start == 0 or box[1].start == 0 or box[0].stop == h or box[1].stop == w
-        keep[k] = length <= MAX_OBJECT_M and not (thin and out_of_view)
+        spread = np.linalg.eigvalsh(np.cov(flat))  # ascending
+        # ±2σ of a uniform bar is most of its length
+        narrow, long = 4.0 * np.sqrt(np.maximum(spread, 0.0))
+        keep[k] = not (narrow < MAX_RAIL_M and long > MIN_RAIL_M)
     out: B = keep[parts] & above
     return out
 
