@@ -186,6 +186,7 @@ def test_the_plane_comes_first_and_is_refined_within_five_frames():
     frames = _frames(source)
     first = finder.update(next(frames))
     assert first.belt is not None
+    assert not first.plane_final
     assert first.travel == "looking"
     assert first.belt.speed_mps is None
     e = errors(first.belt, truth)
@@ -193,6 +194,7 @@ def test_the_plane_comes_first_and_is_refined_within_five_frames():
     assert e.plane_m <= 0.02, e  # a first look: a rail's top and the boxes' feet pull it up
     for _ in range(FinderParams().plane_frames - 1):
         estimate = finder.update(next(frames))
+    assert estimate.plane_final
     e = errors(estimate.belt, truth)
     assert e.normal_deg <= BARS["normal_deg"], e
     assert e.plane_m <= BARS["plane_m"] / 2, e

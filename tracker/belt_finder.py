@@ -4,18 +4,21 @@ A real camera's stream carries no belt geometry; this module finds it in the fir
 of a run. The maths are pure functions; `BeltFinder` is the thin stateful object that feeds
 them frame by frame, and `find_belt` the one-shot form. How and why: `docs/calibrate.md`.
 
-1. The plane (first frame, refined over the next few): the dominant plane's normal (RANSAC)
-   gives the family of parallel horizontal layers — floor, belt, rail tops, box tops — as
-   peaks of the heights along it. The belt is the nearest large layer that is a *support*:
-   what borders it in the image rises from it (boxes, rails) instead of dropping away from
-   it (a box top, a rail top) — the floor is a support too, but farther away.
-2. Travel: the tops of what stands on the belt (horizontal faces above it) are followed
-   from frame to frame in the plane's own coordinates; each followed top gives a velocity
-   by a least-squares line through its positions over time, and the direction and speed
-   are the medians over them (weighted by how long each was followed). Static things give
-   velocity 0 and do not vote; nothing moving in `patience_s` means "no travel direction".
-3. Width: across the direction of travel, between the belt's extreme inliers — or the
-   inner edge of a rail that hides the belt's edge — wherever the view reaches beyond both.
+1. The plane, from the first frame: floor, belt, rail tops and box tops are parallel, so
+   the heights of the points along their common normal pile up in peaks, one per layer (the
+   normal is the RANSAC plane's along which they pile up most sharply). The belt is the
+   nearest layer that is a *support* — what borders it in the image rises from it (boxes,
+   rails) rather than dropping away from it (a box top, a rail top), or it runs right across
+   the view — and is not small beside the largest support. The floor is a support too, but
+   farther away. After `plane_frames` frames the plane is refitted on their mean, which is
+   quiet enough to leave out a rail's top and the feet of the boxes.
+2. The travel: the level tops of what stands on the belt are followed from frame to frame
+   in the plane's own coordinates; each gives a velocity, the slope of a least-squares line
+   through its positions, and the direction and speed are medians over them, weighted by
+   how well each line pins its slope. Things that stand still give no vote: a scene in which
+   nothing moves for `patience_s` has no travel direction ("none"), not a guessed one.
+3. The width: across the travel, between the belt's last points on either side — or the
+   inner side of a rail that hides the belt's edge — wherever the view reaches past both.
 """
 
 from __future__ import annotations
@@ -180,6 +183,7 @@ class PlaneFit:
 
     @property
     def inlier_share(self) -> float:
+        """Share of the valid pixels on the plane."""
         return self.inliers / self.valid if self.valid else 0.0
 
 
@@ -251,25 +255,37 @@ class BeltEstimate:
     """What the finder knows of the belt so far, with how well it knows it."""
 
     belt: KnownBelt | None
-    """Source "found"; None until a plane is found. Until `travel` is "found", its direction
-    is only the belt's long axis (or the camera's x axis) laid in the plane — not a travel
-    direction — and its speed is None."""
+    """Source "found"; None until a plane is found. Its point is where the optical axis meets
+    the plane, or on the centre line once the width is known. Until `travel` is "found", its
+    direction is only an axis laid in the plane (the belt's long axis as seen, or the
+    camera's x axis) — not a travel direction — and its speed is None."""
     travel: Travel
+    plane_final: bool = False
+    """Whether the plane is the refit over the first `plane_frames` (it will not change again);
+    before, it is the first frame's (within about 1-2 cm and 1°)."""
     plane_rms_m: float = math.nan
+    """RMS distance from the plane of the pixels on it (after averaging over the first
+    frames, once refitted)."""
     inlier_share: float = 0.0
+    """Share of the usable pixels on the plane."""
     frames: int = 0
     """Frames used."""
     seconds: float = 0.0
     """Device time spanned by the frames used."""
     direction_spread_deg: float = math.nan
+    """How much the followed tops disagree on the direction (a standard deviation, robustly)."""
     speed_spread_mps: float = math.nan
+    """The same for their speeds."""
+    speed_se_mps: float = math.nan
+    """Standard error of the velocity that the tops' scatter about their lines leaves."""
     tops: int = 0
     """Followed tops that voted for the travel."""
     layers: int = 0
-    """Horizontal layers seen (floor, belt, tops...)."""
+    """Level surfaces seen in the first frame (floor, belt, rail and box tops...)."""
 
     @property
     def found_travel(self) -> bool:
+        """Whether the belt's direction and speed are known."""
         return self.travel == "found"
 
     def describe(self) -> str:
@@ -704,6 +720,7 @@ class _Follow:
 
     @property
     def usual_area(self) -> float:
+        """The median area of its last sightings taken: its size when seen whole."""
         return float(np.median(self.areas)) if self.areas else self.area
 
     def add(self, t: float, uv: F64, area: float, height: float, gate: float) -> None:
@@ -968,6 +985,7 @@ class _Stack:
         )  # fmt: skip
 
     def add(self, frame: Frame, ok: B, sigma: F64) -> None:
+        """Add a frame's usable pixels."""
         self.frames += 1
         self.count += ok
         self.xyz += np.where(ok[..., None], frame.xyz, 0.0)
@@ -992,9 +1010,10 @@ class _Stack:
 class BeltFinder:
     """Finds the belt from the frames of the first seconds of a run.
 
-    The plane comes from the first frame, and is refitted once on the mean of the first
-    `plane_frames`; the travel once enough tops have been followed; the width with it. Once
-    the estimate is final (`done`), `update` returns it at once.
+    The plane comes from the first frame (about 10-25 ms), and is refitted once on the mean
+    of the first `plane_frames` (a few ms); the travel once enough tops have been followed
+    (about 3 ms a frame until then); the width with it. Once the estimate is final (`done`),
+    `update` returns it at once: a live run can keep calling it.
     """
 
     def __init__(self, params: FinderParams | None = None) -> None:
@@ -1028,7 +1047,8 @@ class BeltFinder:
         return self._estimate
 
     def update(self, frame: Frame) -> BeltEstimate:
-        """Take one frame; the estimate so far."""
+        """Take one frame (in device-time order; a repeated or older one is passed over, as is
+        one with fewer than three usable pixels); the estimate so far."""
         if self.done:
             return self._estimate
         t = frame.device_time_us * 1e-6
@@ -1074,6 +1094,7 @@ class BeltFinder:
     # --- the plane -----------------------------------------------------------------------
 
     def _fit_plane(self, frame: Frame, ok: B) -> None:
+        """The first frame's layers and belt; the frames' sums; the refit once enough are in."""
         p = self.params
         sigma = range_noise(frame, NOISE_FLOOR_M)
         if self._plane is None:
@@ -1110,6 +1131,7 @@ class BeltFinder:
     # --- the travel ----------------------------------------------------------------------
 
     def _follow(self, frame: Frame, ok: B, t: float) -> None:
+        """Follow this frame's tops on, re-estimate the travel, and settle the state."""
         if self._status != "looking":
             return
         assert self._plane is not None
@@ -1151,6 +1173,7 @@ class BeltFinder:
             self._close_follows()
 
     def _trusted(self, travel: TravelFit | None) -> bool:
+        """Enough tops, followed long enough, agreeing well enough, to say the travel."""
         p = self.params
         return (
             travel is not None and travel.seconds >= p.settle_s
@@ -1181,6 +1204,7 @@ class BeltFinder:
         return self._edges.width(self._travel.direction)
 
     def _make_estimate(self) -> BeltEstimate:
+        """The estimate from what is known now."""
         plane = self._plane
         seconds = (self._t_last or 0.0) - (self._t_first or 0.0)
         if plane is None:
@@ -1197,12 +1221,14 @@ class BeltFinder:
         return BeltEstimate(
             KnownBelt(geometry, travel.speed_mps if travel else None, "found"),
             "found" if travel is not None else self._status,
+            self._plane_final,
             plane.rms_m,
             plane.inlier_share,
             self._frames,
             seconds,
             travel.direction_spread_deg if travel else math.nan,
             travel.speed_spread_mps if travel else math.nan,
+            travel.speed_se_mps if travel else math.nan,
             travel.segments if travel else 0,
             len(self._layers),
         )
@@ -1239,6 +1265,7 @@ class _EdgeSums:
         )  # fmt: skip
 
     def add(self, xyz: F64, ok: B, plane: PlaneFit, e1: F64, e2: F64) -> None:
+        """Add a frame's usable pixels, by their height above the plane."""
         self.valid += ok
         with np.errstate(invalid="ignore"):
             h = plane.height(xyz)
