@@ -34,7 +34,7 @@ from tofcut.tracker.belt_finder import (
 BARS = {"normal_deg": 1.0, "plane_m": 0.01, "direction_deg": 2.0, "speed": 0.03, "width_m": 0.03}
 """The issue's bars: plane normal, plane offset at the view's centre, direction, speed (share),
 width when both edges are in view."""
-SECONDS = 1.5
+SECONDS = 2.0
 """Frames looked at per scene: enough for every scene below to meet the bars."""
 
 

@@ -9,6 +9,7 @@ out to be farther than thought (an object that stood still at the start and then
 
 from __future__ import annotations
 
+import math
 import warnings
 from dataclasses import dataclass
 
@@ -37,6 +38,23 @@ MAX_RAIL_M = 0.1
 and is narrower than this..."""
 MIN_RAIL_M = 0.5
 """...and longer than this is a rail or a guide beside the belt: it stays scenery."""
+RAIL_BIN_M = 0.01
+"""Bins across a part in which a rail's band is measured..."""
+RAIL_RUN_SHARE = 0.7
+"""A rail's band runs at least this share of the longest band's length in its part."""
+RAIL_STRETCH_M = 0.05
+"""...and along it, its length (far away, a pixel spans centimetres of a rail seen edge on)."""
+LEVEL_M = 0.02
+"""Scenery within this of the belt's plane is the belt (for where it lies, width unknown)..."""
+BAND_TRIM = 1.0
+"""...its band across the run taken between these percentiles of its points (a few of a
+rail's, read low in noise, do not widen it)..."""
+BAND_MARGIN_M = 0.01
+"""...narrowed by this (a rail's inner face stands right at the belt's edge)..."""
+RUN_TO_WIDTH = 1.5
+"""...where its run in view is at least this many times that band (else the run is unclear)."""
+TALLEST_SHARE = 0.5
+"""Nothing standing on the belt is taller than this share of the camera's height above it."""
 BEHIND_BELT_M = 0.3
 """Scenery read this much farther than the belt or more is not the belt (the floor beside a
 belt whose width is not known, a leg of its stand)."""
@@ -145,10 +163,14 @@ class BackgroundModel:
         on = self.known & np.isfinite(surface) & belt.over_belt(rays * self.range[..., None])
         with np.errstate(invalid="ignore"):
             off = self.range - surface
-            above = on & (off < -self.params.min_height_m)
+            above = on & (off < -np.maximum(3.0 * self.sigma, self.params.min_height_m))
+            above &= on_belt_height(rays * self.range[..., None], belt)
             behind = on & (off > np.maximum(3.0 * self.sigma, self.params.min_height_m))
             behind &= off < BEHIND_BELT_M
-        fix = _objects_only(above, rays * self.range[..., None], belt) | behind
+        points = rays * self.range[..., None]
+        with np.errstate(invalid="ignore"):
+            level = on & (np.abs(off) < LEVEL_M)
+        fix = _objects_only(above, points, belt, level) | behind
         self.range[fix] = surface[fix]
         self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
 
@@ -213,32 +235,84 @@ class BackgroundModel:
         )  # fmt: skip
 
 
-def _objects_only(above: B, points: F64, belt: BeltGeometry) -> B:
-    """The parts of `above` (scenery standing on the belt) that could be objects: where the
-    belt's width is not known, not a rail or a guide beside it (narrower than `MAX_RAIL_M`,
-    longer than `MIN_RAIL_M` in the belt's plane), which stays scenery. Where the width is
-    known, what stands beside the belt is not over it anyway."""
+def _objects_only(above: B, points: F64, belt: BeltGeometry, level: B) -> B:
+    """The parts of `above` (scenery standing on the belt) that could be objects. Where the
+    belt's width is not known, rails are told by their shape (`_rails`), and where the
+    scenery at the belt's level (`level`) shows the belt's run, what stands beside it is
+    not over the belt either (a rail's inner face, a guide)."""
     if belt.width_m is not None:
         return above
+    above = above & ~_rails(above, points, belt)
+    band = _belt_band(points[level])
+    if band is None:
+        return above
+    centre, axis, lo, hi = band
+    with np.errstate(invalid="ignore"):
+        across = (points - centre) @ axis
+    inside: B = above & (across >= lo + BAND_MARGIN_M) & (across <= hi - BAND_MARGIN_M)
+    return inside
+
+
+def _belt_band(points: F64) -> tuple[F64, F64, float, float] | None:
+    """Where the belt lies across its run, from points on it: (a point, the across axis, the
+    band's ends along that axis), or None where its run is not clearly the longer way (the
+    view shows a short stretch of a wide belt, or too little of it)."""
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points) < 100:
+        return None
+    centre = points.mean(axis=0)
+    _, axes = np.linalg.eigh(np.cov((points - centre).T))  # ascending
+    # the plane's two axes are the last two: the run is the longest, across the middle one
+    run, axis = axes[:, 2], axes[:, 1]
+    lo_r, hi_r = np.percentile((points - centre) @ run, [1, 99])
+    lo, hi = np.percentile((points - centre) @ axis, [BAND_TRIM, 100 - BAND_TRIM])
+    if hi_r - lo_r < RUN_TO_WIDTH * (hi - lo):
+        return None
+    return centre, axis, float(lo), float(hi)
+
+
+def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
+    """The pixels of `above` on rails: in a part longer than `MIN_RAIL_M` in the belt's plane,
+    a band along its length narrower than `MAX_RAIL_M` that runs `MIN_RAIL_M` or more, and
+    nearly as far as the part's longest band. Boxes standing against a rail join its part in
+    the image but not its band: they cover their own stretch of the bands beside it, not the
+    rail's whole length; a row of boxes as long as the rail is wider than one."""
     # a rail's pixels are broken up by noise: bridged
     near = ndimage.binary_dilation(above, np.ones((3, 3), bool))
-    parts, n = ndimage.label(near, np.ones((3, 3), bool))
+    parts, _ = ndimage.label(near, np.ones((3, 3), bool))
     parts = np.where(above, parts, 0)
-    keep = np.ones(n + 1, bool)
+    rails = np.zeros(above.shape, bool)
     for k, box in enumerate(ndimage.find_objects(parts), start=1):
         if box is None:
             continue
         mine = parts[box] == k
         flat = np.stack([belt.along(points[box][mine]), belt.across(points[box][mine])])
-        flat = flat[:, np.isfinite(flat).all(axis=0)]
-        if flat.shape[1] < 3:
+        ok = np.isfinite(flat).all(axis=0)
+        if ok.sum() < 3:
             continue
-        spread = np.linalg.eigvalsh(np.cov(flat))  # ascending
-        # ±2σ of a uniform bar is most of its length
-        narrow, long = 4.0 * np.sqrt(np.maximum(spread, 0.0))
-        keep[k] = not (narrow < MAX_RAIL_M and long > MIN_RAIL_M)
-    out: B = keep[parts] & above
-    return out
+        centred = flat[:, ok] - flat[:, ok].mean(axis=1, keepdims=True)
+        spread, axes = np.linalg.eigh(np.cov(centred))  # ascending
+        if 4.0 * math.sqrt(max(spread[1], 0.0)) <= MIN_RAIL_M:  # ±2σ of a bar: most of it
+            continue
+        length, side = axes[:, 1] @ centred, axes[:, 0] @ centred
+        band = np.floor(side / RAIL_BIN_M).astype(np.int64)
+        band -= band.min()
+        stretch = np.floor((length - length.min()) / RAIL_STRETCH_M).astype(np.int64)
+        runs = np.zeros(band.max() + 1)
+        for b in np.unique(band):
+            runs[b] = np.unique(stretch[band == b]).size * RAIL_STRETCH_M
+        # a rail runs the part's whole length, but for what hides it; a box beside it less
+        long = runs >= max(MIN_RAIL_M, RAIL_RUN_SHARE * runs.max())
+        lanes, n = ndimage.label(long)
+        on_rail = np.zeros(ok.sum(), bool)
+        for lane in range(1, n + 1):
+            width = (lanes == lane).sum() * RAIL_BIN_M
+            if width < MAX_RAIL_M:
+                on_rail |= lanes[band] == lane
+        where = np.zeros(mine.sum(), bool)
+        where[ok] = on_rail
+        rails[box][mine] = where
+    return rails
 
 
 def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: BackgroundParams) -> B:
@@ -251,6 +325,15 @@ def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: Backg
         REGION_HEIGHT_SHARE * params.min_height_sigmas, params.min_height_m,
     )  # fmt: skip
     return out
+
+
+def on_belt_height(points: F64, belt: BeltGeometry) -> B:
+    """Which points could be on something standing on the belt: nothing there stands half as
+    high as the camera above it (`TALLEST_SHARE`). What reads nearer is something else: a
+    far surface whose phase wrapped round, read near (finite points only pass)."""
+    with np.errstate(invalid="ignore"):
+        low: B = belt.height(points) < TALLEST_SHARE * float(belt.height(np.zeros(3)))
+    return low
 
 
 def near_any(xyz: F64, where: B, points: F64, reach: float) -> B:

@@ -618,13 +618,15 @@ class Tops:
     pixels: I64
 
 
+TALLER_M = 0.03
+"""A pixel beside a top this much higher than it is on something taller, which may hide it."""
 FLAT_SPAN = 2
 """Heights are compared FLAT_SPAN pixels either side of a pixel (over a 5 × 5 mean)."""
 
 
 def find_tops(
     xyz: F64, rng: F64, ok: B, plane: PlaneFit, e1: F64, e2: F64, pixel_rad: float,
-    params: FinderParams,
+    params: FinderParams, sigma: F64,
 ) -> Tops:  # fmt: skip
     """The horizontal faces standing above the belt, whole and not cut by the view's edge or
     an invalid pixel (a cut top moves at another pace than the belt).
@@ -633,7 +635,8 @@ def find_tops(
     `top_tilt_deg` allows over the pixels' spacing); it is grown over its neighbours at its
     height (a metric test, so the face's outline does not change with its distance), and its
     centroid weighs each pixel by the area it covers (r² over the cosine of incidence), so
-    near and far parts count as they are."""
+    near and far parts count as they are. `sigma` is each pixel's range noise: a pixel read
+    high in noise beside a top is not something taller that may hide part of it."""
     with np.errstate(invalid="ignore"):
         h = np.where(ok, plane.height(xyz), 0.0)
     fg = ok & (h > params.top_height_m)
@@ -674,9 +677,15 @@ def find_tops(
     # something higher beside a top may hide part of it (only a taller thing can): not followed
     around = ndimage.grey_dilation(labels, size=5)
     ring = ok & (labels == 0) & (around > 0)
-    higher = h[ring] > level[around[ring]] + 0.03
+    # taller by more than its noise explains, or over the median of its 3 × 3 heights: a
+    # pixel read high in noise is not something taller
+    above = level[around[ring]] + TALLER_M
+    higher = (h[ring] > np.maximum(above, level[around[ring]] + 3.0 * sigma[ring])) | (
+        ndimage.median_filter(h, 3)[ring] > above
+    )
     rings = np.bincount(around[ring], minlength=n)
-    cut |= np.bincount(around[ring][higher], minlength=n) > np.maximum(3, 0.05 * rings)
+    enough = np.maximum(3, 0.05 * rings)
+    cut |= np.bincount(around[ring][higher], minlength=n) > enough
     # each pixel's point where its ray meets the top's level (the mean of many heights): the
     # range noise along the ray no longer moves it in the plane, only the outline does
     top_level = level  # of the core: the grown rim takes in a little of the faces below
@@ -1138,7 +1147,15 @@ class BeltFinder:
         assert self._t_first is not None
         p = self.params
         tops = find_tops(
-            frame.xyz, frame.range, ok, self._plane, self._e1, self._e2, self._pixel_rad, p
+            frame.xyz,
+            frame.range,
+            ok,
+            self._plane,
+            self._e1,
+            self._e2,
+            self._pixel_rad,
+            p,
+            range_noise(frame, NOISE_FLOOR_M),
         )
         matched = match_tops(self._follows, tops, t, p)
         taken = {j for j in matched if j is not None}

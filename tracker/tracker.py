@@ -34,7 +34,12 @@ from scipy.optimize import linear_sum_assignment
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels, stats
-from tofcut.tracker.background import BackgroundModel, BackgroundParams, standing_regions
+from tofcut.tracker.background import (
+    BackgroundModel,
+    BackgroundParams,
+    on_belt_height,
+    standing_regions,
+)
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -613,6 +618,8 @@ class Tracker:
         body |= standing_regions(
             bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
         )
+        if self.params.rigid and self.belt is not None:
+            body &= on_belt_height(frame.xyz, self.belt)
         # a step of `connect_m` parts touching objects of different heights, or three
         # times the noise where that is more: a surface in loud noise is not broken into
         # specks by steps within the noise
@@ -775,7 +782,7 @@ class Tracker:
         )
         splitting = []
         for k, t in enumerate(self._tracks):
-            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0])
+            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
             t.split_frames = t.split_frames + 1 if two else 0
             if t.split_frames >= p.split_frames:
                 splitting.append(k)
@@ -869,6 +876,8 @@ class Tracker:
             if r == 0:
                 continue
             piece = pieces == r
+            if not _solid(piece, p.min_pixels):
+                continue
             pts = frame.xyz[piece]
             centroid = pts.mean(axis=0)
             if self._tracks and np.median(self._distances(pts, noise[piece]).min(axis=0)) < claim:
@@ -898,6 +907,17 @@ class Tracker:
                 next_candidates.append(match)
         self._candidates = next_candidates
         return born
+
+
+def _solid(piece: B, min_pixels: int) -> bool:
+    """Whether a piece has a body: `min_pixels` / 2 pixels or more whose 3×3 neighbourhood is
+    all in it, or it is coming into view. A sliver along a depth edge (mixed pixels
+    flickering in front of the scenery, a rail's rim) has none; the narrowest object has."""
+    box = _box_of(piece)
+    if _on_border(box, piece.shape):
+        return True  # coming into view: a sliver of it first
+    core = ndimage.binary_erosion(piece[box], _EIGHT)
+    return int(np.count_nonzero(core)) * 2 >= min_pixels
 
 
 def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
@@ -939,14 +959,18 @@ def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
     )  # fmt: skip
 
 
-def _touching(pieces: npt.NDArray[np.int32], surfaces: I64) -> bool:
-    """Whether the largest of these pieces touches another of them (across the seam a 3D
-    step leaves: the far pixel, and up to two flying pixels between, whose range mixes both
-    sides): two objects side by side, not one seen either side of an occluder."""
+def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
+    """Whether the largest of these pieces meets another of them within the track's own
+    `mask` (across the seam a 3D step leaves, or across a side face between them that noise
+    breaks into specks): two objects side by side, not one seen either side of an occluder
+    (which parts the mask)."""
     sizes = np.bincount(pieces.ravel())
     first = surfaces[np.argmax(sizes[surfaces])]
-    ring = ndimage.binary_dilation(pieces == first, _EIGHT, iterations=3)
-    return bool(np.isin(pieces[ring], surfaces[surfaces != first]).any())
+    parts, _ = ndimage.label(mask, _EIGHT)
+    home = np.bincount(parts[pieces == first]).argmax()
+    if home == 0:
+        return False
+    return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())
 
 
 def _solve_by_parts(
