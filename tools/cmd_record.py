@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         args.source, realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=args.reconnect,
         on_event=_print_event if args.reconnect else None,
+        virtual_host_clock=not (args.conveyor or args.conveyor_emulator),
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)
