@@ -89,6 +89,9 @@ class EmulatedCamera:
 
     `realtime=False` runs the frame clock virtually: every bulk read gets the next frame at
     once, with device timestamps as if the camera ran at its frame rate; nothing is dropped.
+    The device clock (`now_us`) is then virtual too: it starts at 0 at power-on and stands at
+    the end of the last frame's exposure, so no host time leaks into a fast run and two runs
+    of one scene and seed give the same frames, bit for bit.
     """
 
     def __init__(
@@ -128,6 +131,8 @@ class EmulatedCamera:
         self._clock_start_us = 0
         self._clock_index = 0
         """Frames taken on the current run of the frame clock."""
+        self._virtual_us = 0
+        """The device clock when not `realtime`: the end of the last exposure taken."""
         self._fifo: deque[_Queued] = deque()
         self._drop_pending = False
         self._overflow_latched = False
@@ -151,7 +156,9 @@ class EmulatedCamera:
     # --- timing ---------------------------------------------------------------------------
 
     def now_us(self) -> int:
-        """Device time: µs since power-on."""
+        """Device time: µs since power-on (virtual when not `realtime`: see the class)."""
+        if not self.realtime:
+            return self._virtual_us
         return int((self._monotonic() - self._power_on) * 1e6)
 
     @property
@@ -262,6 +269,8 @@ class EmulatedCamera:
         """The sensor takes a frame: into the FIFO if there is room, else it is dropped."""
         seq = self._next_seq
         self._next_seq = (seq + 1) & 0xFFFFFFFF
+        if not self.realtime:  # the virtual clock stands where the exposure ends
+            self._virtual_us = max(self._virtual_us, t0_us + TAPS * self.tap_interval_us)
         if len(self._fifo) >= self.fifo_frames:
             self.frames_dropped += 1
             self._drop_pending = True
@@ -337,6 +346,7 @@ class EmulatedCamera:
         """Power-on state: reset registers, sequence 0, device clock 0, no faults pending."""
         self._powered = True
         self._power_on = self._monotonic()
+        self._virtual_us = 0
         self._regs = dict(RESET_VALUES)
         self._next_seq = 0
         self._clock_start_us = 0

@@ -48,6 +48,9 @@ def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, cap
     printed = capsys.readouterr().out
     assert "demodulation, 176×144" in printed
     assert str(out / "README.md") in printed
+    # a quick run says that its MISS lines are no measurement (and do not fail it)
+    assert "bench --quick is a smoke run" in printed
+    assert "do not fail it" in printed
 
 
 def test_a_stage_that_does_not_exist_is_refused(tmp_path):

@@ -632,7 +632,10 @@ def test_no_option_saves_a_dated_file_in_the_working_directory(tmp_path, monkeyp
     assert target == RerunTarget.save(tmp_path / "tofcut-20260504-130201.rrd")
     assert target.lossless
     assert str(target.path) in target.describe()
-    assert target_from_args(parse("--headless"), NOW) == target
+    assert target_from_args(parse("--headless"), NOW) == RerunTarget("none")
+    assert target_from_args(parse("--headless", "--save", "a.rrd"), NOW) == RerunTarget.save(
+        "a.rrd"
+    )
     target.path.touch()
     assert default_recording_path(NOW).name == "tofcut-20260504-130201-2.rrd"
 

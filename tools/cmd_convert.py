@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
 from tofcut.driver.capture import CaptureReader
+from tofcut.tools.arguments import capture_file, output_file
 from tofcut.tools.cmd_record import stats_summary
 from tofcut.tools.progress import Progress
 
@@ -17,8 +17,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "convert",
         help="capture → npz of range, amplitude, intensity, valid, xyz and timestamps",
     )
-    p.add_argument("capture", type=Path, metavar="CAPTURE")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.npz")
+    p.add_argument("capture", type=capture_file, metavar="CAPTURE")
+    p.add_argument("-o", "--output", type=output_file, required=True, metavar="FILE.npz")
     p.add_argument("--amplitude-threshold", type=float, default=0.0, metavar="COUNTS")
     p.set_defaults(func=run)
 

@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
 from tofcut.tools import family
+from tofcut.tools.arguments import capture_file, existing_file, output_file
 from tofcut.tools.scoring import GATE_M, MIN_IOU, MIN_PIXELS, STATIC_M, VISITS, evaluate, read_run
 from tofcut.tools.sources import SourceError
 
@@ -37,16 +37,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "evaluate", help="score tracks and masks against emulator ground truth (or a family)"
     )
-    p.add_argument("capture", type=Path, nargs="?", metavar="CAPTURE.tofcap")
-    p.add_argument("--tracks", type=Path, metavar="FILE.jsonl", help="the run's --tracks-out")
-    p.add_argument("--masks", type=Path, metavar="FILE.npz", help="the run's --masks-out")
+    p.add_argument("capture", type=capture_file, nargs="?", metavar="CAPTURE.tofcap")
+    p.add_argument(
+        "--tracks", type=existing_file, metavar="FILE.jsonl", help="the run's --tracks-out"
+    )
+    p.add_argument("--masks", type=existing_file, metavar="FILE.npz", help="the run's --masks-out")
     p.add_argument("--gate", type=float, default=GATE_M, help="match distance, metres (0.1)")
     p.add_argument("--min-pixels", type=int, default=MIN_PIXELS, help="smallest object scored (50)")
     p.add_argument(
         "--min-iou", type=float, default=MIN_IOU, help="smallest mask IoU that matches (0.5)"
     )
     p.add_argument("--per-object", action="store_true", help="also a line per object (masks)")
-    p.add_argument("--json", type=Path, help="also write every number here")
+    p.add_argument("--json", type=output_file, help="also write every number here")
     family.add_family_options(p)
     p.set_defaults(func=run)
 

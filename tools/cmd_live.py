@@ -19,8 +19,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         description="Track live from usb, usb:SERIAL or emulator[:SCENE]. Without --frames or "
         f"--seconds it runs {DEFAULT_SECONDS:g} s; --seconds 0 runs until Ctrl-C.",
     )
-    add_source_argument(p, default="emulator")
-    add_tracking_options(p)
+    add_source_argument(p, default="emulator", captures=False)
+    add_tracking_options(
+        p, seconds_help=f"stop after this long (default {DEFAULT_SECONDS:g}; 0: until Ctrl-C)"
+    )
     add_camera_options(p)
     add_conveyor_options(p)
     p.set_defaults(func=run, default_seconds=DEFAULT_SECONDS)

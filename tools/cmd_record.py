@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 from typing import Any
 
 from tofcut.driver.belt_log import BeltLogWriter, belt_log_path
@@ -26,6 +25,7 @@ from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.truth import FrameTruth, save_truth, truth_path
+from tofcut.tools.arguments import output_file, positive_float, positive_int
 from tofcut.tools.belt_source import BeltResolution, resolve_run_belt, warn
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.losses import describe_losses
@@ -36,11 +36,11 @@ from tofcut.tools.sources import Opened, SourceError, open_source
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("record", help="record a camera's raw frames to a .tofcap capture")
-    add_source_argument(p)
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.tofcap")
+    add_source_argument(p, captures=False)
+    p.add_argument("-o", "--output", type=output_file, required=True, metavar="FILE.tofcap")
     limit = p.add_mutually_exclusive_group()
-    limit.add_argument("--frames", type=int, help="stop after this many frames")
-    limit.add_argument("--seconds", type=float, help="stop after this long (default 5 s)")
+    limit.add_argument("--frames", type=positive_int, help="stop after this many frames")
+    limit.add_argument("--seconds", type=positive_float, help="stop after this long (default 5 s)")
     p.add_argument(
         "--reconnect", action="store_true",
         help="record through unplugs, stalls and hangs (default: stop at the first, with an "
@@ -79,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         args.source, realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=args.reconnect,
         on_event=_print_event if args.reconnect else None,
+        virtual_host_clock=not (args.conveyor or args.conveyor_emulator),
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)

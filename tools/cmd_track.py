@@ -11,7 +11,6 @@ import functools
 import sys
 import time
 from collections.abc import Callable
-from pathlib import Path
 
 import numpy as np
 
@@ -21,8 +20,18 @@ from tofcut.driver.capture import CaptureReader
 from tofcut.driver.demod import demodulate
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.frames import Frame
+from tofcut.tools.arguments import (
+    UsageError,
+    non_negative_float,
+    output_file,
+    pixel,
+    point,
+    positive_float,
+    positive_int,
+)
 from tofcut.tools.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
+from tofcut.tools.ctrl_c import CtrlC
 from tofcut.tools.losses import describe_losses, event_level
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
 from tofcut.tools.pipeline import (
@@ -36,7 +45,7 @@ from tofcut.tools.pipeline import (
     run,
 )
 from tofcut.tools.progress import Progress
-from tofcut.tools.rerun_sink import RerunSink
+from tofcut.tools.rerun_sink import NullSink, RerunSink
 from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
 from tofcut.tools.run_belt import RunBelt
 from tofcut.tools.sources import Opened, SourceError, open_source, scene_target
@@ -47,32 +56,31 @@ from tofcut.tracker.tracker import Tracker, TrackerParams
 from tofcut.tracker.tracks import TrackedFrame
 
 
-def _triple(text: str) -> tuple[float, float, float]:
-    parts = [float(x) for x in text.split(",")]
-    if len(parts) != 3:
-        raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z")
-    return (parts[0], parts[1], parts[2])
-
-
-def _pixel(text: str) -> tuple[int, int]:
-    parts = [int(x) for x in text.split(",")]
-    if len(parts) != 2:
-        raise argparse.ArgumentTypeError(f"{text!r} is not U,V")
-    return (parts[0], parts[1])
-
-
-def add_tracking_options(p: argparse.ArgumentParser) -> None:
+def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None = None) -> None:
+    """The tracking options; `seconds_help` (live) lets `--seconds 0` mean until Ctrl-C."""
     g = p.add_argument_group("tracking")
-    g.add_argument("--tracks-out", type=Path, metavar="FILE.jsonl", help="tracks, one line a frame")
-    g.add_argument("--masks-out", type=Path, metavar="FILE.npz", help="label images of every frame")
-    g.add_argument("--frames", type=int, help="stop after this many frames")
-    g.add_argument("--seconds", type=float, help="stop after this long")
     g.add_argument(
-        "--target-pixel", type=_pixel, action="append", default=[], metavar="U,V",
+        "--tracks-out", type=output_file, metavar="FILE.jsonl", help="tracks, one line a frame"
+    )
+    g.add_argument(
+        "--masks-out", type=output_file, metavar="FILE.npz", help="label images of every frame"
+    )
+    g.add_argument("--frames", type=positive_int, help="stop after this many frames")
+    g.add_argument(
+        "--seconds", type=positive_float if seconds_help is None else non_negative_float,
+        help=seconds_help or "stop after this long",
+    )  # fmt: skip
+    g.add_argument(
+        "--keep-going", action="store_true",
+        help="exit 0 even when damaged frames were skipped or no frame was tracked (the "
+        "closing lines still say what was skipped)",
+    )  # fmt: skip
+    g.add_argument(
+        "--target-pixel", type=pixel, action="append", default=[], metavar="U,V",
         help="follow a known target from this seed pixel (repeatable)",
     )  # fmt: skip
     g.add_argument(
-        "--target-point", type=_triple, action="append", default=[], metavar="X,Y,Z",
+        "--target-point", type=point, action="append", default=[], metavar="X,Y,Z",
         help="follow a known target from this 3D point, camera coordinates (repeatable)",
     )  # fmt: skip
     g.add_argument(
@@ -116,7 +124,7 @@ class StatusLine:
 class RerunOutput:
     """The rerun sink as a pipeline output."""
 
-    def __init__(self, sink: RerunSink) -> None:
+    def __init__(self, sink: RerunSink | NullSink) -> None:
         self.sink = sink
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
@@ -171,10 +179,16 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         if seed is None:
             raise SourceError("--scene-target needs an emulated scene that marks a target")
         targets.append(seed)
-    for pixel in targets:
-        tracker.add_target(pixel=pixel)
-    for point in args.target_point:
-        tracker.add_target(point=np.array(point))
+    width, height = device.info.width, device.info.height
+    for u, v in targets:
+        if not (0 <= u < width and 0 <= v < height):
+            raise UsageError(
+                f"--target-pixel {u},{v} is outside the frame: the image is {width}x{height}, "
+                f"so U is 0-{width - 1} and V is 0-{height - 1}"
+            )
+        tracker.add_target(pixel=(u, v))
+    for xyz in args.target_point:
+        tracker.add_target(point=np.array(xyz))
     replay = _replay(device)
     try:
         line = open_conveyor(
@@ -194,11 +208,16 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
             args, device.calibration, direction, name=f"tofcut {args.source}"
         )
         events.start([lambda e: sink.event(str(e), event_level(e)), _print_event])
-        summary = _run(args, live, device, tracker, sink, events, line, run_belt.at_frame)
-        if replay is not None:
+        with CtrlC() as ctrl_c:
+            summary = _run(
+                args, live, device, tracker, sink, events, line, run_belt.at_frame,
+                lambda: ctrl_c.requested,
+            )  # fmt: skip
+        summary.interrupted |= ctrl_c.requested
+        if replay is not None and not summary.interrupted:
             replay.finish()
-    except KeyboardInterrupt:
-        print("stopped by Ctrl-C; the outputs hold every frame tracked", file=sys.stderr)
+    except KeyboardInterrupt:  # before the run started
+        print("stopped by Ctrl-C before the run began", file=sys.stderr)
         return 130
     finally:
         if line is not None:
@@ -230,7 +249,39 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         path = getattr(args, name)
         if path:
             say(f"wrote {path}")
-    return 0
+    if summary.interrupted:
+        say(f"stopped by Ctrl-C after {summary.frames} frames; the outputs hold every one")
+        return 130
+    return _damage_verdict(args, device, summary, say)
+
+
+def _damage_verdict(
+    args: argparse.Namespace,
+    device: Camera | CaptureReader,
+    summary: RunSummary,
+    say: Callable[..., None],
+) -> int:
+    """The closing line on what a damaged capture made the run skip, and the exit status:
+    1 when frames were skipped or none was tracked, unless `--keep-going`."""
+    skipped = []
+    if isinstance(device, CaptureReader):
+        if device.stats.damaged:
+            skipped.append(f"{device.stats.damaged} damaged frames")
+        if device.truncated_bytes:
+            skipped.append(f"{device.truncated_bytes} bytes cut short at the end of the file")
+    if not skipped and summary.frames > 0:
+        return 0
+    what = f"skipped {' and '.join(skipped)}" if skipped else "nothing skipped"
+    say(f"{args.source.arg or args.source}: {what}; {summary.frames} frames tracked")
+    problem = "no frame was tracked" if summary.frames == 0 else "the input is damaged"
+    if args.keep_going:
+        print(f"tofcut: warning: {problem} (--keep-going: exit status 0)", file=sys.stderr)
+        return 0
+    print(
+        f"tofcut: error: {problem}: {what} (--keep-going accepts what could be read)",
+        file=sys.stderr,
+    )
+    return 1
 
 
 def _replay(device: Camera | CaptureReader) -> ReplayedLink | None:
@@ -254,10 +305,11 @@ def _run(
     live: bool,
     device: Camera | CaptureReader,
     tracker: Tracker,
-    sink: RerunSink,
+    sink: RerunSink | NullSink,
     events: EventRelay,
     line: ConveyorLine | None,
     prior: Callable[[Frame], VelocityPrior | None],
+    stop_asked: Callable[[], bool] = lambda: False,
 ) -> RunSummary:
     """The pipeline on a capture (progress bar) or a camera (reader thread, status line)."""
     outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
@@ -272,6 +324,8 @@ def _run(
     started = time.perf_counter()
 
     def should_stop(s: RunSummary) -> bool:
+        if stop_asked():
+            return True
         if args.frames is not None and s.frames >= args.frames:
             return True
         return limit_s is not None and time.perf_counter() - started >= limit_s

@@ -5,17 +5,22 @@ from __future__ import annotations
 import argparse
 
 from tofcut.driver.config import CameraConfig, TriggerMode
+from tofcut.tools.arguments import source
 from tofcut.tools.sources import SourceSpec
 
 
-def add_source_argument(parser: argparse.ArgumentParser, default: str | None = None) -> None:
-    help_text = "usb, usb:SERIAL, emulator[:SCENE] or FILE.tofcap"
+def add_source_argument(
+    parser: argparse.ArgumentParser, default: str | None = None, *, captures: bool = True
+) -> None:
+    """The SOURCE argument; without `captures`, only cameras (`live`, `record`)."""
+    help_text = "usb, usb:SERIAL, emulator[:SCENE]" + (" or FILE.tofcap" if captures else "")
+    kind = source(captures=captures)
     if default is None:
-        parser.add_argument("source", type=SourceSpec.parse, metavar="SOURCE", help=help_text)
+        parser.add_argument("source", type=kind, metavar="SOURCE", help=help_text)
     else:
         parser.add_argument(
             "source",
-            type=SourceSpec.parse,
+            type=kind,
             nargs="?",
             default=SourceSpec.parse(default),
             metavar="SOURCE",

@@ -8,6 +8,7 @@ Offline (a capture), frames are read as fast as they are tracked and nothing is 
 from __future__ import annotations
 
 import json
+import os
 import queue
 import threading
 import time
@@ -168,6 +169,8 @@ class RunSummary:
     latencies: LatencyHistogram = field(default_factory=LatencyHistogram)
     elapsed_s: float = 0.0
     tracks_started: int = 0
+    interrupted: bool = False
+    """Ctrl-C stopped the run (the outputs hold every frame tracked until then)."""
 
     def percentile_ms(self, q: float) -> float:
         return self.latencies.percentile(q) * 1e3
@@ -191,7 +194,9 @@ class MasksWriter:
     """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`.
 
     Every frame's labels stay in memory until `close()` writes the file (about 50 KB a
-    176×144 frame): meant for runs of bounded length, not for unattended live runs.
+    176×144 frame): meant for runs of bounded length, not for unattended live runs. The
+    file is written beside its name and renamed into place, so a failed write leaves no
+    half file (and an older file of that name stays whole until the new one is).
     """
 
     def __init__(self, path: Path) -> None:
@@ -204,12 +209,17 @@ class MasksWriter:
         self._seq.append(tracked.sequence)
 
     def close(self) -> None:
-        if self._labels:
-            np.savez_compressed(
-                self.path,
-                labels=np.stack(self._labels).astype(np.uint16),
-                seq=np.array(self._seq, np.int64),
-            )
+        if not self._labels:
+            return
+        labels, seq = np.stack(self._labels).astype(np.uint16), np.array(self._seq, np.int64)
+        self._labels, self._seq = [], []
+        partial = self.path.with_name(f".{self.path.name}.partial")
+        try:
+            with partial.open("wb") as f:
+                np.savez_compressed(f, labels=labels, seq=seq)
+            os.replace(partial, self.path)
+        finally:
+            partial.unlink(missing_ok=True)
 
 
 def run(
@@ -256,6 +266,8 @@ def run(
                 out.write(tracked, status)
             if should_stop(summary):
                 break
+    except KeyboardInterrupt:  # the outputs are closed below: they keep every frame tracked
+        summary.interrupted = True
     finally:
         summary.elapsed_s = time.perf_counter() - start
         summary.dropped = dropped()

@@ -148,14 +148,17 @@ class RerunSink:
         belt_direction: npt.ArrayLike | None = None,
         *,
         name: str | None = None,
-    ) -> RerunSink:
+    ) -> RerunSink | NullSink:
         """The sink `add_rerun_options` asked for; says where the recording goes.
 
-        The message goes to stderr when the recording itself goes to stdout.
+        The message goes to stderr when the recording itself goes to stdout. `--headless`
+        alone gives a `NullSink`: nothing is recorded, nothing written.
         """
         target = target_from_args(args)
         out = sys.stderr if target.kind == "stdout" else sys.stdout
         print(f"rerun: {target.describe()}", file=out, flush=True)
+        if target.kind == "none":
+            return NullSink()
         return cls(calibration, target, belt_direction, name=name)
 
     # --- the hot path -----------------------------------------------------------------------
@@ -341,6 +344,32 @@ class RerunSink:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class NullSink:
+    """No recording (`--headless` without `--save`): takes frames and events, keeps none."""
+
+    target = RerunTarget("none")
+    dropped = 0
+
+    def __init__(self) -> None:
+        self._logged = 0
+
+    def log(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        self._logged += 1
+
+    def event(self, text: str, level: str = "INFO") -> None:
+        pass
+
+    @property
+    def stats(self) -> SinkStats:
+        return SinkStats(self._logged, 0, 0, 0, 0.0, 0.0)
+
+    def summary(self) -> str:
+        return "rerun: nothing recorded (--headless)"
+
+    def close(self) -> None:
+        pass
 
 
 @dataclass(frozen=True)

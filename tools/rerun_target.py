@@ -3,7 +3,9 @@
 `add_rerun_options` adds rerun's own `--headless --connect --serve --url --save --stdout`
 (`rr.script_add_args`) plus `--spawn`. Rerun's example scripts spawn a viewer when no option is
 given; tofcut saves a `.rrd` file in the working directory instead, so the main command works on
-a machine with no screen (`--headless` means the same). `--url` alone implies `--connect`.
+a machine with no screen. `--headless` alone records nothing (as in rerun's own scripts, where
+it means no viewer and no sink); `--headless --save FILE` writes FILE. `--url` alone implies
+`--connect`.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from typing import Literal, cast
 import rerun as rr
 import rerun.blueprint as rrb
 
-TargetKind = Literal["save", "spawn", "connect", "serve", "stdout"]
+TargetKind = Literal["save", "spawn", "connect", "serve", "stdout", "none"]
 
 
 @dataclass(frozen=True)
@@ -44,6 +46,8 @@ class RerunTarget:
         return self.kind == "save"
 
     def describe(self) -> str:
+        if self.kind == "none":
+            return "no recording (--headless; add --save FILE.rrd to keep one)"
         if self.kind == "save":
             return f"saving the recording to {self.path} (view it with: rerun {self.path})"
         if self.kind == "connect":
@@ -62,6 +66,8 @@ class RerunTarget:
         so a run of weeks would grow without bound. The stream is complete without it;
         `rerun rrd optimize RUN.rrd -o OUT.rrd` writes a copy with one.
         """
+        if self.kind == "none":
+            return  # rerun's `--headless`: no sink (a sink that records nothing is `NullSink`)
         if self.kind == "save":
             assert self.path is not None
             rec.save(self.path, default_blueprint=blueprint, write_footer=False)
@@ -79,7 +85,8 @@ class RerunTarget:
 def add_rerun_options(parser: argparse.ArgumentParser) -> None:
     """Rerun's customary options (`rr.script_add_args`) and `--spawn`, in their own group."""
     group = parser.add_argument_group(
-        "rerun output (default: save tofcut-DATE-TIME.rrd in the working directory)"
+        "rerun output (default: save tofcut-DATE-TIME.rrd in the working directory; "
+        "--headless: no recording unless --save)"
     )
     # script_add_args only calls add_argument, which an argument group has too.
     rr.script_add_args(cast(argparse.ArgumentParser, group))
@@ -110,6 +117,8 @@ def target_from_args(args: argparse.Namespace, now: dt.datetime | None = None) -
         return RerunTarget.save(args.save)
     if args.spawn:
         return RerunTarget("spawn")
+    if args.headless:
+        return RerunTarget("none")
     return RerunTarget.save(default_recording_path(now))
 
 

@@ -276,6 +276,12 @@ class RunFiles:
     rays: npt.NDArray[np.float64]
 
 
+def _is_zip(path: Path) -> bool:
+    """An .npz file is a zip archive."""
+    with path.open("rb") as f:
+        return f.read(4) == b"PK\x03\x04"
+
+
 def read_run(
     capture: Path, tracks: Path, masks: Path, truths: list[FrameTruth] | None = None
 ) -> RunFiles:
@@ -283,6 +289,16 @@ def read_run(
 
     `truths` saves reading the truth again when several runs of one capture are scored.
     """
+    for p, what in ((capture, "capture"), (tracks, "tracks file"), (masks, "masks file")):
+        if not p.is_file():
+            there = "is a folder" if p.is_dir() else "does not exist"
+            raise SourceError(f"{what} {p} {there}")
+    if _is_zip(tracks):
+        raise SourceError(f"{tracks} is an .npz file, not a tracks file: --tracks takes the "
+                          "run's --tracks-out (JSONL), --masks its --masks-out (.npz)")  # fmt: skip
+    if not _is_zip(masks):
+        raise SourceError(f"{masks} is not an .npz file: --masks takes the run's --masks-out "
+                          "(.npz), --tracks its --tracks-out (JSONL)")  # fmt: skip
     path = truth_path(capture)
     if truths is None:
         if not path.is_file():
@@ -290,9 +306,6 @@ def read_run(
                 f"no ground truth beside the capture ({path}): record from the emulator"
             )
         truths = load_truth(path)
-    for p in (capture, tracks, masks):
-        if not p.is_file():
-            raise SourceError(f"no such file: {p}")
     try:
         rays = pixel_rays(CaptureReader(capture).calibration)
     except CaptureError as exc:

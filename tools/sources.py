@@ -6,6 +6,7 @@ The emulator is chosen here and nowhere else: it is a pyusb backend handed to th
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,9 @@ from tofcut.sim.usb_backend import EmulatedBackend
 
 TEST_PATTERN = "test-pattern"
 DEFAULT_SCENE = "conveyor"
+FAST_HOST_EPOCH_NS = 1_767_225_600 * 1_000_000_000
+"""The host time (2026-01-01 00:00 UTC) at which a fast emulated camera's virtual clock
+starts, when the run's host clock follows it (`open_source(..., virtual_host_clock=True)`)."""
 
 
 class SourceError(TofcutError, ValueError):
@@ -132,11 +136,16 @@ def open_source(
     amplitude_threshold: float = 0.0,
     reconnect: bool = False,
     on_event: Callable[[DeviceEvent], None] | None = None,
+    virtual_host_clock: bool = False,
 ) -> Opened:
     """Open a USB or emulated camera, or a capture that replays like one.
 
     `reconnect` makes a camera's stream outlive unplugs, stalls and hangs (else they raise);
-    `on_event` gets the camera's device events, on the thread that reads frames.
+    `on_event` gets the camera's device events, on the thread that reads frames. With
+    `virtual_host_clock`, an emulated camera that is not `realtime` stamps frames with its
+    own virtual clock (from `FAST_HOST_EPOCH_NS`) instead of the host's, so that a fast run
+    is the same, bit for bit, every time; not for a run with a conveyor link, whose readings
+    are stamped on the host's clock.
     """
     if spec.kind == "capture":
         assert spec.arg is not None
@@ -151,8 +160,11 @@ def open_source(
     registers = source.settings.registers if isinstance(source, SceneSource) else None
     emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
     backend = EmulatedBackend([emulator])
+    clock_ns = time.time_ns
+    if virtual_host_clock and not realtime:
+        clock_ns = lambda: FAST_HOST_EPOCH_NS + emulator.now_us() * 1000  # noqa: E731
     camera = Camera.open(
         backend=backend, amplitude_threshold=amplitude_threshold, reconnect=reconnect,
-        on_event=on_event,
+        on_event=on_event, clock_ns=clock_ns,
     )  # fmt: skip
     return Opened(camera, emulator, scene_metadata(source), backend)
