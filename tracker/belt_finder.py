@@ -73,7 +73,8 @@ class FinderParams:
     max_band_m: float = 0.03
     """...and at most this."""
     max_sigma_m: float = 0.05
-    """Pixels noisier than this (far, dark, grazing) take no part in finding the plane."""
+    """Pixels noisier than this (far, dark, grazing) take no part in finding the plane,
+    unless the median pixel is (`quiet_enough`)."""
     drop_m: float = 0.03
     """A neighbour this much lower than a layer is a drop off its edge (and 3 sigmas)."""
     island_share: float = 0.5
@@ -478,6 +479,15 @@ def drop_share(heights: F64, reach: F64, ok: B, layer: B) -> float:
     return lower / (lower + higher) if lower + higher else 0.0
 
 
+def quiet_enough(sigma: F64, params: FinderParams) -> float:
+    """The loudest range noise a pixel may have to take part in finding the plane:
+    `max_sigma_m`, or the median noise of the usable pixels where that is more (on a loud
+    line, a belt read far and dark with more noise than that is still most of the view)."""
+    if not sigma.size:
+        return params.max_sigma_m
+    return max(params.max_sigma_m, float(np.median(sigma)))
+
+
 def choose_belt(layers: list[Layer], params: FinderParams) -> int | None:
     """Index of the belt among the layers: the nearest support (not an island) that is large
     beside the largest support (or runs across the view); failing any support, the largest
@@ -503,7 +513,7 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
     share the family's normal), how much its border drops away and how wide it runs across
     the view. The layers are the peaks of the heights along the family's normal (of the
     sharper half of the pixels: far, noisy ones blur the peaks)."""
-    ok = ok & (sigma <= params.max_sigma_m)
+    ok = ok & (sigma <= quiet_enough(sigma[ok], params))
     pts, sig = xyz[ok], sigma[ok]
     if len(pts) < 3:
         return []
@@ -1122,7 +1132,7 @@ class BeltFinder:
         if self._stack.frames < p.plane_frames:
             return
         mean, steady, noise = self._stack.mean()
-        steady &= noise <= p.max_sigma_m
+        steady &= noise <= quiet_enough(noise[steady], p)
         fit = steady_plane(mean, steady, noise, self._layers, self._belt_layer, p)
         if fit is not None:
             self._set_plane(fit)

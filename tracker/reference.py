@@ -17,12 +17,13 @@ from tofcut.tracker.background import (
     BLEND_VARIANCE_SHARE,
     BackgroundModel,
     near_any,
+    on_belt_height,
     standing_regions,
 )
 from tofcut.tracker.kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
-from tofcut.tracker.tracker import Tracker
+from tofcut.tracker.tracker import Tracker, _quietened
 
 F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
@@ -187,6 +188,8 @@ class ReferenceTracker(Tracker):
         usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
         body |= standing_regions(bg.range, bg.sigma, usable, frame.range, bg.params)
+        if self.params.rigid and self.belt is not None:
+            body &= on_belt_height(frame.xyz, self.belt)
         return self._pieces(frame, body, noise)
 
     def _pieces(
@@ -194,18 +197,18 @@ class ReferenceTracker(Tracker):
     ) -> npt.NDArray[np.int32]:
         h, w = frame.shape
         body = body.copy()
-        xyz = frame.xyz
+        xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
         spread2 = 9.0 * noise**2 if step_noise else np.zeros(frame.shape)
         for dv, du in ((0, 1), (1, 0)):
             a, b = _shifted(h, w, dv, du)
             allowed = np.maximum(self.params.connect_m**2, spread2[a] + spread2[b])
             jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
-            far_a = jump & (frame.range[a] > frame.range[b])
+            far_a = jump & (rng[a] > rng[b])
             far_b = jump & ~far_a
             body[a] &= ~far_a
             body[b] &= ~far_b
         pieces, _ = ndimage.label(body)
-        return self._by_tops(frame, body, np.asarray(pieces, np.int32), noise)
+        return self._by_tops(xyz, body, np.asarray(pieces, np.int32), noise)
 
 
 def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:

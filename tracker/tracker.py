@@ -193,6 +193,8 @@ class _Candidate:
     seen: int = 1
 
 
+MEDIAN_NOISE_SHARE = 0.418
+"""Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
@@ -632,20 +634,21 @@ class Tracker:
         `connect_m`, or, given the range noise, than three times the noise of their
         difference where that is more (a seed on a far, dark target); the pixel on the far
         side of such a step is left out."""
+        xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
         spread2 = 9.0 * noise**2 if step_noise else _no_spread(frame.shape)
-        body = kernels.cut_at_steps(body, frame.xyz, frame.range, self.params.connect_m**2, spread2)
+        body = kernels.cut_at_steps(body, xyz, rng, self.params.connect_m**2, spread2)
         pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
-        return self._by_tops(frame, body, pieces, noise)
+        return self._by_tops(xyz, body, pieces, noise)
 
-    def _by_tops(self, frame: Frame, body: B, pieces: I32, noise: F64) -> I32:
+    def _by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64) -> I32:
         """Rigid objects on a known belt: a piece holding two tops is two objects
         (`tofcut.tracker.tops`); others as they are."""
         if not self.params.rigid or self.belt is None or pieces.max() < 1:
             return pieces
-        up = facing_up(body, frame.xyz, noise, self.belt)
+        up = facing_up(body, xyz, noise, self.belt)
         if up is None:
             return pieces
-        return split_by_tops(pieces, up, frame.xyz, noise, self.belt, self.params.min_pixels)
+        return split_by_tops(pieces, up, xyz, noise, self.belt, self.params.min_pixels)
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
@@ -918,6 +921,22 @@ def _solid(piece: B, min_pixels: int) -> bool:
         return True  # coming into view: a sliver of it first
     core = ndimage.binary_erosion(piece[box], _EIGHT)
     return int(np.count_nonzero(core)) * 2 >= min_pixels
+
+
+def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F64, F64]:
+    """The points, ranges and noise of `body` for finding its surfaces: where the range noise
+    is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
+    neighbours in `body` (a step between two objects stands out of that median's smaller
+    noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
+    loud = body & (noise * 3.0 >= step_m)
+    if not loud.any():
+        return frame.xyz, frame.range, noise
+    rng = kernels.median3_within(frame.range, body, loud)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(loud, rng / frame.range, 1.0)
+    xyz = frame.xyz * scale[..., None]
+    quiet = np.where(loud, noise * MEDIAN_NOISE_SHARE, noise)
+    return xyz, rng, quiet
 
 
 def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
