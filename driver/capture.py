@@ -26,6 +26,7 @@ from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
     MAX_SENSOR_SIDE,
     DeviceInfo,
+    check_sensor_size,
 )
 from tofcut.driver.stream import FrameParser, StreamStats
 
@@ -192,6 +193,8 @@ class CaptureReader:
         _int_field(meta, "max_fps", 0, 0xFFFF, default=0)
         width = _int_field(meta, "width", 1, MAX_SENSOR_SIDE)
         height = _int_field(meta, "height", 1, MAX_SENSOR_SIDE)
+        if why := check_sensor_size(width, height):
+            raise CaptureError(f"metadata gives {why}")
         if not isinstance(meta.get("registers"), dict):
             raise CaptureError("metadata lacks 'registers' (object)")
         (calib_len,) = _U32.unpack(_read_exact(f, 4, "calibration length"))
