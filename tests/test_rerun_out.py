@@ -752,3 +752,38 @@ def test_a_recording_on_stdout_carries_nothing_else(tmp_path):
     checked = rrd_verify(path)
     assert checked.returncode == 0, checked.stdout + checked.stderr
     assert len(frame_sequences(path)) == 12
+
+
+def test_a_device_timestamp_past_rerun_s_range_costs_that_field_not_the_run(tmp_path, capsys):
+    """A u64 device time ≥ 2^63 made rerun fail ('int too big to convert') and `track` exit 1.
+    The frame is now logged on its sequence and log time, without device_time, and counted."""
+    from dataclasses import replace
+
+    from tofcut.driver.capture import CaptureReader, CaptureWriter
+    from tofcut.driver.protocol import HEADER_SIZE, pack_header
+    from tofcut.tools.cli import main
+
+    cap = tmp_path / "run.tofcap"
+    assert main(["record", "emulator:test-pattern", "-o", str(cap), "--frames", "8", "--fast"]) == 0
+    reader = CaptureReader(cap)
+    odd = tmp_path / "odd.tofcap"
+    odd_sequences = set()
+    with CaptureWriter(odd, reader.capture.metadata, reader.capture.calibration_block) as out:
+        for i, raw in enumerate(reader.raw_frames()):
+            if i in (3, 4):
+                stamp = 2**63 + i if i == 3 else 2**64 - 1
+                header = replace(raw.header, device_time_us=stamp)
+                raw = replace(raw, header=header, wire=pack_header(header) + raw.wire[HEADER_SIZE:])
+                odd_sequences.add(raw.sequence)
+            out.write(raw)
+    rrd = tmp_path / "odd.rrd"
+    capsys.readouterr()
+    assert main(["track", str(odd), "--save", str(rrd)]) == 0
+    printed = capsys.readouterr().out
+    assert "8 of 8 frames written" in printed
+    assert "2 without a device time" in printed
+    on_sequence = rows_on(rrd, "world/camera/depth", "DepthImage:buffer")
+    assert len(on_sequence) == 8
+    device = all_rows(rrd, "world/camera/depth", "DepthImage:buffer", timeline="device_time")
+    assert sum(t is None for t, _ in device) == 2  # the two odd frames, off that timeline
+    assert len([t for t, _ in device if t is not None]) == 6
