@@ -37,6 +37,9 @@ log = logging.getLogger(__name__)
 Listener = Callable[[BeltReading], object]
 CLOSE_DEADLINE_S = 1.0
 """`close()` waits this long at most for a request under way to end."""
+COMMANDS_KEPT = 64
+"""Diverter commands waiting for the link: past this many (a link stuck in a long request),
+the oldest is dropped and counted as late (it would be dropped as late when sent anyway)."""
 
 
 @dataclass(frozen=True)
@@ -248,6 +251,10 @@ class ConveyorClient:
         A command the link cannot send within `max_command_delay_s` is dropped and counted:
         a late push would hit the wrong object."""
         with self._lock:
+            if len(self._commands) >= COMMANDS_KEPT:
+                old, _ = self._commands.popleft()
+                self._counts["diverter_late"] += 1
+                log.error("diverter command for %d dropped: the link is behind", old)
             self._commands.append((tag, time.monotonic()))
         self._wake.set()
 

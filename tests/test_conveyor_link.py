@@ -23,7 +23,7 @@ from pymodbus.framer.rtu import FramerRTU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from tofcut.driver.conveyor import ConveyorClient
+from tofcut.driver.conveyor import COMMANDS_KEPT, ConveyorClient
 from tofcut.driver.conveyor_map import LINK_RANGES, LinkSettings, RegisterMap
 from tofcut.driver.errors import LinkError
 from tofcut.sim.conveyor import EmulatedConveyor
@@ -238,6 +238,18 @@ def test_a_fast_heartbeat_does_not_starve_the_polls(tmp_path, heartbeat_s):
             stats = client.wait_stats(lambda s: s.readings >= 20 and s.heartbeats >= 20, WAIT_S)
     assert stats.readings >= 20, stats
     assert stats.heartbeats >= 20, stats
+
+
+def test_diverter_commands_queued_behind_a_stuck_link_are_bounded(tmp_path):
+    with pty_line(tmp_path, timeout_s=10.0) as (conveyor, server, client, _now):
+        fresh(client, conveyor)
+        server.silent = True  # the link now waits up to 10 s for each reply
+        for tag in range(COMMANDS_KEPT + 100):
+            client.divert(tag)
+        with client._lock:
+            assert len(client._commands) <= COMMANDS_KEPT
+        assert client.stats.diverter_late >= 99  # the oldest, dropped; one may be in flight
+    assert conveyor.diverter_commands == []
 
 
 def test_the_port_vanishes_and_comes_back(tmp_path):
