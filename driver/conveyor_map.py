@@ -314,7 +314,14 @@ def _number(value: object, where: str) -> float:
     return number
 
 
+MAX_BELT_COORD_M = 1e4
+"""The belt's point, and the components of its direction and normal, are at most this large."""
+
+
 def _vector(value: object, where: str) -> np.ndarray[Any, np.dtype[np.float64]]:
     if not isinstance(value, list) or len(value) != 3:
         raise ConfigError(f"{where} must be a list of 3 numbers")
-    return np.array([_number(v, where) for v in value])
+    out = np.array([_number(v, where) for v in value])
+    if np.abs(out).max() > MAX_BELT_COORD_M:
+        raise ConfigError(f"{where}: each number must be within ±{MAX_BELT_COORD_M:g}")
+    return out
