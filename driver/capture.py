@@ -123,6 +123,12 @@ def _left(f: BinaryIO) -> int:
     return os.fstat(f.fileno()).st_size - f.tell()
 
 
+def _show(value: object) -> str:
+    """A metadata value for a message: its repr, cut short (metadata may be 1 MiB)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
+
+
 def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
     if n > _left(f):  # checked first, so a damaged length cannot make us allocate
         raise CaptureError(f"capture ends inside its {what}")
@@ -137,7 +143,7 @@ def _int_field(
 ) -> int:
     value = meta.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise CaptureError(f"metadata {key!r} is missing or implausible: {value!r}")
+        raise CaptureError(f"metadata {key!r} is missing or implausible: {_show(value)}")
     return value
 
 
@@ -187,7 +193,7 @@ class CaptureReader:
             raise CaptureError("metadata is not a JSON object")
         serial = meta.get("serial")
         if not isinstance(serial, str) or not SERIAL_TEXT.fullmatch(serial):
-            raise CaptureError(f"metadata 'serial' is not 1 to 8 hex digits: {serial!r}")
+            raise CaptureError(f"metadata 'serial' is not 1 to 8 hex digits: {_show(serial)}")
         _int_field(meta, "firmware", 0, 0xFFFF)
         _int_field(meta, "protocol", 0, 0xFFFF)
         _int_field(meta, "max_fps", 0, 0xFFFF, default=0)

@@ -177,7 +177,7 @@ class LinkSettings:
         if self.baudrate <= 0:
             raise ConfigError(f"link.baudrate must be positive, not {self.baudrate}")
         if self.parity not in ("N", "E", "O"):
-            raise ConfigError(f"link.parity must be N, E or O, not {self.parity!r}")
+            raise ConfigError(f"link.parity must be N, E or O, not {_show(self.parity)}")
         if self.bytesize not in (7, 8):
             raise ConfigError(f"link.bytesize must be 7 or 8, not {self.bytesize}")
         if self.stopbits not in (1, 2):
@@ -194,7 +194,9 @@ class LinkSettings:
                 or not lo <= value <= hi
             ):
                 none = " (or 0: none)" if name == "heartbeat_s" else ""
-                raise ConfigError(f"link.{name} must be in {lo:g}..{hi:g}{none}, not {value!r}")
+                raise ConfigError(
+                    f"link.{name} must be in {lo:g}..{hi:g}{none}, not {_show(value)}"
+                )
         if self.is_tcp:
             self.tcp_address()  # checks the form
 
@@ -207,7 +209,7 @@ class LinkSettings:
         rest = self.port[len(TCP_PREFIX) :]
         host, _, port = rest.rpartition(":") if ":" in rest else (rest, "", "502")
         if not port.isdigit() or not 0 < int(port) < 65536 or not host:
-            raise ConfigError(f"{self.port!r} is not tcp://HOST:PORT")
+            raise ConfigError(f"{_show(self.port)} is not tcp://HOST:PORT")
         return host, int(port)
 
 
@@ -281,10 +283,10 @@ def _dataclass_from(cls: Any, table: object, where: str) -> Any:
             values[key] = _number(value, f"{where}.{key}")
         elif kind == "int":
             if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{where}.{key} must be an integer, not {value!r}")
+                raise ConfigError(f"{where}.{key} must be an integer, not {_show(value)}")
             values[key] = value
         elif not isinstance(value, str):
-            raise ConfigError(f"{where}.{key} must be a string, not {value!r}")
+            raise ConfigError(f"{where}.{key} must be a string, not {_show(value)}")
         else:
             values[key] = value
     return cls(**values)
@@ -299,18 +301,24 @@ def _check_keys(
 
 def _check_int(name: str, value: int, lo: int, hi: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ConfigError(f"{name} must be an integer in {lo}..{hi}, not {value!r}")
+        raise ConfigError(f"{name} must be an integer in {lo}..{hi}, not {_show(value)}")
+
+
+def _show(value: object) -> str:
+    """A value for a message: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
 
 
 def _number(value: object, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ConfigError(f"{where} must be a number, not {value!r}")
+        raise ConfigError(f"{where} must be a number, not {_show(value)}")
     try:
         number = float(value)
     except OverflowError:
         number = math.inf
     if not math.isfinite(number):
-        raise ConfigError(f"{where} must be a finite number, not {value!r}")
+        raise ConfigError(f"{where} must be a finite number, not {_show(value)}")
     return number
 
 

@@ -327,7 +327,7 @@ def _motion(t: Table, where: str) -> Motion:
 
 def _object(t: Table, object_id: int) -> SceneObject:
     name = _text(t, "name", f"object {object_id}", f"object-{object_id}")
-    where = f"object {name!r}"
+    where = f"object {_show(name)}"
     _check_keys(t, _OBJECT_KEYS, where, {"part": "[[object.part]]"})
     albedo = _albedo(t, "albedo", where, 0.45)
     start = Pose(_rotation(t, where), _vec(t.get("position", [0.0, 0.0, 0.0]), f"{where}.position"))

@@ -48,11 +48,13 @@ MAX_RSS_MB = 1024
 """Peak resident memory a fuzzing subprocess may reach (Python, numpy and the package take
 about 120 MB; the inputs are small, so anything near this bound is a size read unchecked)."""
 
+MAX_MESSAGE = 600
+"""An error is one line of at most this many characters (what it quotes is cut short)."""
 INTERESTING_INTS = [0, 1, 0x7F, 0x80, 0xFF, 0x7FFF, 0x8000, 0xFFFF, 2**31 - 1, 2**31, 2**32 - 1]
 INTERESTING_TOML = [
     "nan", "inf", "-inf", "-1", "0", "-0.0", "1e300", "-1e300", "1e-300", '"x"', '"false"',
     "true", "false", "[]", "{}", "[nan, nan, nan]", "[0, 0, 0]", "[1e300, 0, 0]",
-    "99999999999999999999999", "4096", "100000", "0.000001", "[1, 2]", '""',
+    "99999999999999999999999", "4096", "100000", "0.000001", "[1, 2]", '""', '"' + "x" * 5000 + '"',
 ]  # fmt: skip
 
 
@@ -134,8 +136,8 @@ def run_cases(
         try:
             check(case)
         except TofcutError as exc:
-            if "\n" in str(exc):
-                failures.append(f"{name} case {i}: a multi-line error: {exc!r}")
+            if "\n" in str(exc) or len(str(exc)) > MAX_MESSAGE:
+                failures.append(f"{name} case {i}: not one short line: {str(exc)[:2000]!r}")
         except Exception:
             failures.append(f"{name} case {i}:\n{traceback.format_exc(limit=6)}")
 

@@ -180,7 +180,8 @@ class _Parser:
         self.depth = 0
 
     def _error(self, what: str) -> NoReturn:
-        raise ConfigError(f"reject rule {self.text!r}: {what}")
+        text = self.text if len(self.text) <= 60 else self.text[:60] + "…"
+        raise ConfigError(f"reject rule {text!r}: {what}")
 
     def _peek(self) -> tuple[str, str] | None:
         return self.tokens[self.i] if self.i < len(self.tokens) else None
