@@ -220,7 +220,7 @@ def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(tmp_pat
         closer.start()
         closer.join(WAIT_S)
         assert not closer.is_alive(), "close() waited on the silent controller"
-        assert time.monotonic() - start < 0.5 + 0.5
+        assert time.monotonic() - start < 0.5 + 2.0  # the deadline, and a busy machine's slack
         assert client._abandoned is not None
         assert client._abandoned.is_alive()
         assert client.stats.timeouts == 0  # the request was abandoned, not timed out
