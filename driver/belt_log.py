@@ -86,12 +86,18 @@ class LoggedBelt:
 Entry = LogHeader | BeltReading | LoggedBelt
 
 
+PENDING_KEPT = 10_000
+"""Lines kept before the log's header is written (10 s of readings at 1000 polls a second)."""
+
+
 class BeltLogWriter:
     """Writes a conveyor log as readings arrive; `reading` is a `ConveyorClient` listener.
 
     Lines written before `begin` (readings that came while the link opened) are kept and go
-    out right after the header. A write that fails (disk full) stops the log; `error` says
-    why, and the run goes on: the capture matters more than its log.
+    out right after the header: the newest `PENDING_KEPT` of them (a camera slow to open
+    must not grow memory without end); `pending_dropped` counts the older ones. A write that
+    fails (disk full) stops the log; `error` says why, and the run goes on: the capture
+    matters more than its log.
     """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
@@ -99,7 +105,9 @@ class BeltLogWriter:
         self.readings = 0
         self.error: str | None = None
         self._lock = threading.Lock()
-        self._pending: list[str] | None = []
+        self._pending: deque[str] | None = deque(maxlen=PENDING_KEPT)
+        self.pending_dropped = 0
+        """Lines written before `begin` and dropped: `PENDING_KEPT` newer ones were waiting."""
         try:
             self._file: IO[str] = self.path.open("w", encoding="utf-8")
         except OSError as exc:
@@ -117,7 +125,7 @@ class BeltLogWriter:
             "max_extrapolation_s": max_extrapolation_s,
         }
         with self._lock:
-            pending, self._pending = self._pending or [], None
+            pending, self._pending = list(self._pending or ()), None
             for line in [_dumps(header), *pending]:
                 self._put(line)
 
@@ -146,6 +154,8 @@ class BeltLogWriter:
         line = _dumps(doc)
         with self._lock:
             if self._pending is not None:
+                if len(self._pending) == self._pending.maxlen:
+                    self.pending_dropped += 1
                 self._pending.append(line)
             else:
                 self._put(line)

@@ -12,8 +12,8 @@ from tofcut.driver.errors import ProtocolError
 from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
     CALIB_MAGIC,
-    MAX_SENSOR_SIDE,
     MOD_FREQ_MHZ,
+    check_sensor_size,
     crc32,
 )
 
@@ -111,8 +111,8 @@ def parse_calibration(
         raise ProtocolError(f"calibration magic is {magic!r}, expected {CALIB_MAGIC!r}")
     if version != 1 or header_size != CALIB_HEADER_SIZE:
         raise ProtocolError(f"calibration version {version} / header {header_size} not supported")
-    if not (0 < w <= MAX_SENSOR_SIDE and 0 < h <= MAX_SENSOR_SIDE):
-        raise ProtocolError(f"calibration block is for an impossible sensor {w}x{h}")
+    if why := check_sensor_size(w, h):
+        raise ProtocolError(f"calibration block is for {why}")
     if width is not None and height is not None and (w, h) != (width, height):
         raise ProtocolError(f"calibration block is for {w}x{h}, the sensor is {width}x{height}")
     expected = CALIB_HEADER_SIZE + 2 * w * h

@@ -26,6 +26,7 @@ from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
     MAX_SENSOR_SIDE,
     DeviceInfo,
+    check_sensor_size,
 )
 from tofcut.driver.stream import FrameParser, StreamStats
 
@@ -122,6 +123,12 @@ def _left(f: BinaryIO) -> int:
     return os.fstat(f.fileno()).st_size - f.tell()
 
 
+def _show(value: object) -> str:
+    """A metadata value for a message: its repr, cut short (metadata may be 1 MiB)."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
+
+
 def _read_exact(f: BinaryIO, n: int, what: str) -> bytes:
     if n > _left(f):  # checked first, so a damaged length cannot make us allocate
         raise CaptureError(f"capture ends inside its {what}")
@@ -136,7 +143,7 @@ def _int_field(
 ) -> int:
     value = meta.get(key, default)
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise CaptureError(f"metadata {key!r} is missing or implausible: {value!r}")
+        raise CaptureError(f"metadata {key!r} is missing or implausible: {_show(value)}")
     return value
 
 
@@ -186,12 +193,14 @@ class CaptureReader:
             raise CaptureError("metadata is not a JSON object")
         serial = meta.get("serial")
         if not isinstance(serial, str) or not SERIAL_TEXT.fullmatch(serial):
-            raise CaptureError(f"metadata 'serial' is not 1 to 8 hex digits: {serial!r}")
+            raise CaptureError(f"metadata 'serial' is not 1 to 8 hex digits: {_show(serial)}")
         _int_field(meta, "firmware", 0, 0xFFFF)
         _int_field(meta, "protocol", 0, 0xFFFF)
         _int_field(meta, "max_fps", 0, 0xFFFF, default=0)
         width = _int_field(meta, "width", 1, MAX_SENSOR_SIDE)
         height = _int_field(meta, "height", 1, MAX_SENSOR_SIDE)
+        if why := check_sensor_size(width, height):
+            raise CaptureError(f"metadata gives {why}")
         if not isinstance(meta.get("registers"), dict):
             raise CaptureError("metadata lacks 'registers' (object)")
         (calib_len,) = _U32.unpack(_read_exact(f, 4, "calibration length"))

@@ -35,6 +35,11 @@ from tofcut.driver.errors import ConfigError, LinkError
 log = logging.getLogger(__name__)
 
 Listener = Callable[[BeltReading], object]
+CLOSE_DEADLINE_S = 1.0
+"""`close()` waits this long at most for a request under way to end."""
+COMMANDS_KEPT = 64
+"""Diverter commands waiting for the link: past this many (a link stuck in a long request),
+the oldest is dropped and counted as late (it would be dropped as late when sent anyway)."""
 
 
 @dataclass(frozen=True)
@@ -110,6 +115,7 @@ class ConveyorClient:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._thread: threading.Thread | None = None
+        self._abandoned: threading.Thread | None = None
         self._connected = False
         self._ever_connected = False
         self._rx_seen = False
@@ -145,6 +151,9 @@ class ConveyorClient:
         """Open the port and start polling; `LinkError` if the port cannot be opened now."""
         if self._thread is not None:
             return self
+        if self._abandoned is not None:  # a request close() gave up on: let it end first
+            self._abandoned.join()
+            self._abandoned = None
         if not self._connect():
             raise LinkError(
                 f"cannot open the conveyor link {self.link.port!r} ({self._last_error}); "
@@ -155,14 +164,27 @@ class ConveyorClient:
         self._thread.start()
         return self
 
-    def close(self) -> None:
-        """Stop polling and close the port."""
+    def close(self, deadline_s: float = CLOSE_DEADLINE_S) -> None:
+        """Stop polling and close the port, within `deadline_s`: a request still in flight
+        then (a silent controller, a long `timeout_s`) is abandoned to the link's thread, a
+        daemon, which closes the port itself when the request ends."""
         self._stop.set()
         self._wake.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        self._modbus.close()  # type: ignore[no-untyped-call]
+        thread, self._thread = self._thread, None
+        if thread is not None:
+            thread.join(deadline_s)
+            if thread.is_alive():
+                self._abandoned = thread
+                log.warning(
+                    "conveyor link %s: a request was still under way %.1f s after close; "
+                    "abandoned (the port closes when it times out)",
+                    self.link.port,
+                    deadline_s,
+                )
+            else:
+                self._abandoned = None
+        elif self._abandoned is None or not self._abandoned.is_alive():
+            self._modbus.close()  # type: ignore[no-untyped-call]
         with self._lock:
             self._connected = False
             self._link_up = False
@@ -229,6 +251,10 @@ class ConveyorClient:
         A command the link cannot send within `max_command_delay_s` is dropped and counted:
         a late push would hit the wrong object."""
         with self._lock:
+            if len(self._commands) >= COMMANDS_KEPT:
+                old, _ = self._commands.popleft()
+                self._counts["diverter_late"] += 1
+                log.error("diverter command for %d dropped: the link is behind", old)
             self._commands.append((tag, time.monotonic()))
         self._wake.set()
 
@@ -248,9 +274,11 @@ class ConveyorClient:
             command = self._next_command()
             now = time.monotonic()
             try:
+                # Diverter commands first; then whichever of heartbeat and poll fell due
+                # first, so that neither can starve the other.
                 if command is not None:
                     self._write_diverter(*command)
-                elif now >= next_beat:
+                elif now >= next_beat and next_beat <= next_poll:
                     next_beat = now + beat
                     self._write_heartbeat()
                 elif now >= next_poll:
@@ -260,6 +288,7 @@ class ConveyorClient:
                     self._wake.wait(min(next_poll, next_beat) - now)
             except _Failed:
                 pass
+        self._modbus.close()  # type: ignore[no-untyped-call]
 
     def _connect(self) -> bool:
         error = "not there, busy, or refused"  # pymodbus logs the reason and returns False
@@ -292,6 +321,8 @@ class ConveyorClient:
         """One request with retries: the reply and the middle of its round trip (host ns)."""
         for attempt in range(self.link.retries + 1):
             if attempt:
+                if self._stop.is_set():  # closing: no more attempts
+                    raise _Failed
                 self._count("retries")
             self._rx_seen = False
             t0 = self._clock_ns()

@@ -8,11 +8,11 @@ belt and diverter are. Defaults, and the TOML file that overrides them::
     bytesize = 8
     stopbits = 1
     unit = 1                     # the controller's Modbus unit (slave) id, 1..247
-    timeout_s = 0.1              # per request
+    timeout_s = 0.1              # per request, 0.001..10 s
     retries = 2                  # extra attempts after a timeout, bad frame or exception reply
-    poll_hz = 50                 # encoder polls per second
-    heartbeat_s = 1.0            # heartbeat write interval (0: none)
-    reopen_s = 0.5               # wait between attempts to reopen a lost port
+    poll_hz = 50                 # encoder polls per second, 0.1..1000
+    heartbeat_s = 1.0            # heartbeat write interval, 0.01..3600 s (0: none)
+    reopen_s = 0.5               # wait between attempts to reopen a lost port, 0.01..60 s
 
     [registers]                  # holding registers, 0-based protocol addresses
     encoder = 0                  # 32-bit unsigned count in two registers: encoder, encoder + 1
@@ -38,7 +38,6 @@ belt and diverter are. Defaults, and the TOML file that overrides them::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -46,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from tofcut.driver.belt import BeltGeometry
+from tofcut.driver.config_file import read_toml, unknown_keys
 from tofcut.driver.errors import ConfigError
 
 MAX_READ_REGISTERS = 125
@@ -53,6 +53,19 @@ MAX_READ_REGISTERS = 125
 READ_GAP = 8
 """Registers this close together are read in one request (the gap is read and ignored)."""
 TCP_PREFIX = "tcp://"
+MAX_FILE_BYTES = 1 << 20
+"""A conveyor file larger than this is refused unread (real ones are a few hundred bytes)."""
+LINK_RANGES: dict[str, tuple[float, float]] = {
+    "timeout_s": (0.001, 10.0),
+    "poll_hz": (0.1, 1000.0),
+    "heartbeat_s": (0.01, 3600.0),
+    "reopen_s": (0.01, 60.0),
+}
+"""The ranges of the link's timings (`heartbeat_s` may also be 0: no heartbeat). A request
+shorter than a millisecond cannot reach a controller; one longer than 10 s would hold up the
+end of a run (`ConveyorClient.close` abandons a request after its deadline); past 1000 polls a
+second a serial line cannot keep up, and the history of readings grows with the rate; a
+heartbeat faster than 100 a second would crowd out the polls."""
 
 
 @dataclass(frozen=True)
@@ -164,19 +177,26 @@ class LinkSettings:
         if self.baudrate <= 0:
             raise ConfigError(f"link.baudrate must be positive, not {self.baudrate}")
         if self.parity not in ("N", "E", "O"):
-            raise ConfigError(f"link.parity must be N, E or O, not {self.parity!r}")
+            raise ConfigError(f"link.parity must be N, E or O, not {_show(self.parity)}")
         if self.bytesize not in (7, 8):
             raise ConfigError(f"link.bytesize must be 7 or 8, not {self.bytesize}")
         if self.stopbits not in (1, 2):
             raise ConfigError(f"link.stopbits must be 1 or 2, not {self.stopbits}")
         _check_int("unit", self.unit, 1, 247)
         _check_int("retries", self.retries, 0, 10)
-        for name in ("timeout_s", "poll_hz", "reopen_s"):
+        for name, (lo, hi) in LINK_RANGES.items():
             value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"link.{name} must be a positive number, not {value}")
-        if not (math.isfinite(self.heartbeat_s) and self.heartbeat_s >= 0):
-            raise ConfigError(f"link.heartbeat_s must be 0 (none) or positive: {self.heartbeat_s}")
+            if name == "heartbeat_s" and value == 0:
+                continue
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | float)
+                or not lo <= value <= hi
+            ):
+                none = " (or 0: none)" if name == "heartbeat_s" else ""
+                raise ConfigError(
+                    f"link.{name} must be in {lo:g}..{hi:g}{none}, not {_show(value)}"
+                )
         if self.is_tcp:
             self.tcp_address()  # checks the form
 
@@ -189,7 +209,7 @@ class LinkSettings:
         rest = self.port[len(TCP_PREFIX) :]
         host, _, port = rest.rpartition(":") if ":" in rest else (rest, "", "502")
         if not port.isdigit() or not 0 < int(port) < 65536 or not host:
-            raise ConfigError(f"{self.port!r} is not tcp://HOST:PORT")
+            raise ConfigError(f"{_show(self.port)} is not tcp://HOST:PORT")
         return host, int(port)
 
 
@@ -207,10 +227,10 @@ def load_conveyor_config(path: str | Path) -> ConveyorConfig:
     """Read a conveyor TOML file (format in this module's docstring)."""
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+        doc = read_toml(p, MAX_FILE_BYTES)
     except OSError as exc:
         raise ConfigError(f"{p}: {exc.strerror or exc}") from None
-    except tomllib.TOMLDecodeError as exc:
+    except ValueError as exc:
         raise ConfigError(f"{p}: {exc}") from None
     try:
         return parse_conveyor_config(doc)
@@ -220,7 +240,8 @@ def load_conveyor_config(path: str | Path) -> ConveyorConfig:
 
 def parse_conveyor_config(doc: dict[str, Any]) -> ConveyorConfig:
     """A conveyor configuration from a parsed TOML document."""
-    _check_keys(doc, {"link", "registers", "belt"}, "the file")
+    tables = {"link", "registers", "belt"}
+    _check_keys(doc, tables, "the file", {t: f"[{t}]" for t in tables})
     link = _dataclass_from(LinkSettings, doc.get("link", {}), "link")
     registers = _dataclass_from(RegisterMap, doc.get("registers", {}), "registers")
     belt_table = doc.get("belt", {})
@@ -262,33 +283,53 @@ def _dataclass_from(cls: Any, table: object, where: str) -> Any:
             values[key] = _number(value, f"{where}.{key}")
         elif kind == "int":
             if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"{where}.{key} must be an integer, not {value!r}")
+                raise ConfigError(f"{where}.{key} must be an integer, not {_show(value)}")
             values[key] = value
         elif not isinstance(value, str):
-            raise ConfigError(f"{where}.{key} must be a string, not {value!r}")
+            raise ConfigError(f"{where}.{key} must be a string, not {_show(value)}")
         else:
             values[key] = value
     return cls(**values)
 
 
-def _check_keys(table: dict[str, Any], allowed: set[str], where: str) -> None:
-    unknown = set(table) - allowed
-    if unknown:
-        raise ConfigError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+def _check_keys(
+    table: dict[str, Any], allowed: set[str], where: str, forms: dict[str, str] | None = None
+) -> None:
+    if message := unknown_keys(table, allowed, forms):
+        raise ConfigError(f"{where}: {message}")
 
 
 def _check_int(name: str, value: int, lo: int, hi: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise ConfigError(f"{name} must be an integer in {lo}..{hi}, not {value!r}")
+        raise ConfigError(f"{name} must be an integer in {lo}..{hi}, not {_show(value)}")
+
+
+def _show(value: object) -> str:
+    """A value for a message: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
 
 
 def _number(value: object, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise ConfigError(f"{where} must be a number, not {value!r}")
-    return float(value)
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ConfigError(f"{where} must be a number, not {_show(value)}")
+    try:
+        number = float(value)
+    except OverflowError:
+        number = math.inf
+    if not math.isfinite(number):
+        raise ConfigError(f"{where} must be a finite number, not {_show(value)}")
+    return number
+
+
+MAX_BELT_COORD_M = 1e4
+"""The belt's point, and the components of its direction and normal, are at most this large."""
 
 
 def _vector(value: object, where: str) -> np.ndarray[Any, np.dtype[np.float64]]:
     if not isinstance(value, list) or len(value) != 3:
         raise ConfigError(f"{where} must be a list of 3 numbers")
-    return np.array([_number(v, where) for v in value])
+    out = np.array([_number(v, where) for v in value])
+    if np.abs(out).max() > MAX_BELT_COORD_M:
+        raise ConfigError(f"{where}: each number must be within ±{MAX_BELT_COORD_M:g}")
+    return out

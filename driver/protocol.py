@@ -144,7 +144,25 @@ class DeviceInfo:
 
 
 MAX_SENSOR_SIDE = 4096
-"""No sensor of this family is larger; a bigger size read from the wire is damage."""
+"""No sensor of this family is wider or taller; a bigger size read from the wire is damage."""
+MAX_SENSOR_PIXELS = (FLASH_BLOCK * 0x10000 - 64) // 2
+"""The most pixels (W × H) a camera of this protocol can have: 2,097,120, e.g. 1448 × 1448
+(the SR4K has 176 × 144 = 25,344). READ_FLASH numbers its 64-byte blocks with the request's
+16-bit wValue (spec §2), so the calibration block — a 64-byte header and 2 bytes a pixel
+(§5) — is at most 4 MiB. Everything sized by the sensor (frames, rays, images) is
+proportional to this: a bigger size from the wire, a file or a scene is refused."""
+
+
+def check_sensor_size(width: int, height: int) -> str:
+    """'' for a sensor size a camera of this protocol can have, else why not (one line)."""
+    if not (0 < width <= MAX_SENSOR_SIDE and 0 < height <= MAX_SENSOR_SIDE):
+        return f"an impossible sensor size {width}x{height} (each side 1..{MAX_SENSOR_SIDE})"
+    if width * height > MAX_SENSOR_PIXELS:
+        return (
+            f"an impossible sensor size {width}x{height}: more than {MAX_SENSOR_PIXELS} pixels, "
+            "the most a calibration block readable with READ_FLASH can describe"
+        )
+    return ""
 
 
 def pack_info(info: DeviceInfo) -> bytes:
@@ -174,8 +192,8 @@ def parse_info(data: bytes | bytearray | memoryview) -> DeviceInfo:
         raise ProtocolError("GET_INFO reply fails its CRC")
     if protocol != 1:
         raise ProtocolError(f"protocol version {protocol} is not supported (this driver speaks 1)")
-    if not (0 < width <= MAX_SENSOR_SIDE and 0 < height <= MAX_SENSOR_SIDE):
-        raise ProtocolError(f"GET_INFO reports an impossible sensor size {width}x{height}")
+    if why := check_sensor_size(width, height):
+        raise ProtocolError(f"GET_INFO reports {why}")
     expected_calib = CALIB_HEADER_SIZE + 2 * width * height
     if calib_size != expected_calib:
         raise ProtocolError(

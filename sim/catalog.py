@@ -7,7 +7,7 @@ from pathlib import Path
 
 from tofcut.sim.family import FAMILIES, family_scene, parse_family_name
 from tofcut.sim.renderer import SceneSource
-from tofcut.sim.scene_file import SceneError, load_scene
+from tofcut.sim.scene_file import UnknownScene, load_scene
 
 SCENES_DIR = Path(__file__).parent / "scenes"
 
@@ -26,7 +26,7 @@ def scene_path(name_or_path: str) -> Path:
     if path.suffix == ".toml" and path.is_file():
         return path
     families = ", ".join(f"family:{f}:SEED" for f in FAMILIES)
-    raise SceneError(
+    raise UnknownScene(
         f"no scene {name_or_path!r}: give a .toml file, {families}, or one of "
         f"{', '.join(scene_names())}"
     )

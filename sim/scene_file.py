@@ -53,17 +53,18 @@ swing = { axis = [0, 1, 0], amplitude_deg = 20, period_s = 4, pivot = [0, 0, 0.4
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
-import tomllib
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tofcut.driver.config_file import read_toml, unknown_keys
 from tofcut.driver.errors import TofcutError
-from tofcut.driver.protocol import MOD_FREQ_MHZ
+from tofcut.driver.protocol import MOD_FREQ_MHZ, check_sensor_size
 from tofcut.sim.geometry import Pose, axis_angle, look_at, rotation_xyz_deg
 from tofcut.sim.lens import LensSpec
 from tofcut.sim.scene import (
@@ -81,6 +82,20 @@ from tofcut.sim.shapes import Box, Capsule, Cylinder, Plane, Shape, Sphere
 
 Table = dict[str, Any]
 
+MAX_FILE_BYTES = 1 << 20
+"""A scene file larger than this is refused unread (the built-in ones are about 2 KB)."""
+MAX_COORD_M = 1000.0
+"""Positions, sizes, lengths and velocities are at most this large (m, m/s)."""
+MAX_BELT_LENGTH_M = 100.0
+"""The belt's stand has a pair of legs every 1.2 m: a longer belt is refused."""
+MAX_TIME_S = 1e6
+"""Durations, periods and waypoint times are at most this (s)."""
+MAX_ANGLE_DEG = 1e4
+MAX_COUNT = 1000
+"""The most objects, surfaces, parts of one object or waypoints of one path."""
+MIN_PERIOD_100US, MAX_PERIOD_100US = 1, 0xFFFF
+"""`fps` must give a FRAME_PERIOD register value (100 µs units, u16) in this range."""
+
 _PLACE = {"position", "rotation_deg", "from", "to"}
 _SHAPE = {"shape", "size", "radius", "length"}
 _PART_KEYS = _SHAPE | _PLACE | {"albedo", "swing", "name"}
@@ -91,23 +106,112 @@ _BELT_KEYS = {
     "floor_albedo", "stand_albedo",
 }  # fmt: skip
 _CAMERA_KEYS = {"position", "look_at", "up", "mod_code", "mod_freq_mhz", "integration", "fps"}
+_SWING_KEYS = {"axis", "amplitude_deg", "period_s", "phase_deg", "pivot"}
+_TOP_FORMS = {
+    "name": "name", "description": "description", "duration_s": "duration_s",
+    "camera": "[camera]", "sensor": "[sensor]", "belt": "[belt]", "surface": "[[surface]]",
+    "object": "[[object]]",
+}  # fmt: skip
+_LENS_INTS = {"width", "height"}
+_SENSOR_RANGES: dict[str, tuple[float, float]] = {
+    "responsivity": (0.0, 1e7),
+    "contrast": (0.0, 1.0),
+    "ambient": (0.0, 1e7),
+    "dark": (0.0, 65535.0),
+    "gain": (1e-6, 1e3),
+    "read_noise": (0.0, 65535.0),
+    "falloff_exponent": (0.0, 20.0),
+    "supersample": (1, 8),
+    "edge_jump_m": (1e-6, MAX_COORD_M),
+}
+"""What each `[sensor]` field may be (`supersample`, an integer, sets memory per edge pixel)."""
 
 
 class SceneError(TofcutError, ValueError):
     """A scene file that cannot be understood."""
 
 
-def _vec(value: Any, what: str) -> np.ndarray:
-    arr = np.asarray(value, np.float64)
-    if arr.shape != (3,):
-        raise SceneError(f"{what} must be three numbers, got {value!r}")
-    return arr
+class UnknownScene(SceneError):
+    """No built-in scene, family or scene file by that name."""
 
 
-def _check_keys(table: Table, allowed: set[str], where: str) -> None:
-    unknown = set(table) - allowed
-    if unknown:
-        raise SceneError(f"{where}: unknown keys {sorted(unknown)}; allowed: {sorted(allowed)}")
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _number(
+    value: Any, what: str, lo: float = -MAX_COORD_M, hi: float = MAX_COORD_M, *,
+    above: bool = False, integer: bool = False,
+) -> float:  # fmt: skip
+    """A finite number (an integer if `integer`) in lo..hi (above lo if `above`)."""
+    kind = "an integer" if integer else "a number"
+    if not _is_number(value) or (integer and not isinstance(value, int)):
+        raise SceneError(f"{what} must be {kind}, not {_show(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf
+    if not math.isfinite(x):
+        raise SceneError(f"{what} must be a finite number, not {_show(value)}")
+    if not (lo < x <= hi if above else lo <= x <= hi):
+        bound = f"above {lo:g} and at most {hi:g}" if above else f"in {lo:g}..{hi:g}"
+        raise SceneError(f"{what} must be {bound}, not {_show(value)}")
+    return x
+
+
+def _get(
+    t: Table, key: str, where: str, default: float, lo: float = -MAX_COORD_M,
+    hi: float = MAX_COORD_M, *, above: bool = False,
+) -> float:  # fmt: skip
+    return _number(t.get(key, default), f"{where}.{key}", lo, hi, above=above)
+
+
+def _albedo(t: Table, key: str, where: str, default: float) -> float:
+    return _get(t, key, where, default, 0.0, 1.0)
+
+
+def _vec(value: Any, what: str, limit: float = MAX_COORD_M) -> np.ndarray:
+    if not isinstance(value, list | tuple) or len(value) != 3:
+        raise SceneError(f"{what} must be three numbers, got {_show(value)}")
+    return np.array([_number(v, what, -limit, limit) for v in value], np.float64)
+
+
+def _rotation(t: Table, where: str) -> np.ndarray:
+    angles = _vec(t.get("rotation_deg", [0.0, 0.0, 0.0]), f"{where}.rotation_deg", MAX_ANGLE_DEG)
+    return rotation_xyz_deg(list(angles))
+
+
+def _text(t: Table, key: str, where: str, default: str) -> str:
+    value = t.get(key, default)
+    if not isinstance(value, str):
+        raise SceneError(f"{where}.{key} must be a string, not {_show(value)}")
+    return value
+
+
+def _table(value: Any, what: str) -> Table:
+    if not isinstance(value, dict):
+        raise SceneError(f"{what} must be a table, not {_show(value)}")
+    return value
+
+
+def _tables(value: Any, what: str) -> list[Table]:
+    if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+        raise SceneError(f"{what} must be an array of tables ([[{what}]]), not {_show(value)}")
+    if len(value) > MAX_COUNT:
+        raise SceneError(f"more than {MAX_COUNT} [[{what}]]")
+    return value
+
+
+def _check_keys(
+    table: Table, allowed: set[str], where: str, forms: dict[str, str] | None = None
+) -> None:
+    if message := unknown_keys(table, allowed, forms):
+        raise SceneError(f"{where}: {message}")
 
 
 def _z_to(direction: np.ndarray) -> np.ndarray:
@@ -124,105 +228,156 @@ def _z_to(direction: np.ndarray) -> np.ndarray:
 def _shape_and_pose(t: Table, where: str) -> tuple[Shape, Pose]:
     """A shape and its pose in the parent frame from `shape`, sizes and placement keys."""
     kind = t.get("shape")
-    rot = rotation_xyz_deg(t.get("rotation_deg", [0.0, 0.0, 0.0]))
+    rot = _rotation(t, where)
     pos = _vec(t.get("position", [0.0, 0.0, 0.0]), f"{where}.position")
-    length = float(t.get("length", 0.0))
+    length = _get(t, "length", where, 0.0, 0.0, MAX_COORD_M)
     if "from" in t or "to" in t:
         if kind not in ("cylinder", "capsule"):
             raise SceneError(f"{where}: from/to only place cylinders and capsules")
+        if "from" not in t or "to" not in t:
+            raise SceneError(f"{where}: give both from and to")
         a, b = _vec(t["from"], f"{where}.from"), _vec(t["to"], f"{where}.to")
         length = float(np.linalg.norm(b - a))
+        if length < 1e-9:
+            raise SceneError(f"{where}: from and to are the same point")
         pos, rot = (a + b) / 2.0, _z_to((b - a) / length)
     shape: Shape
+    radius = 0.0
+    if kind in ("sphere", "cylinder", "capsule"):
+        if "radius" not in t:
+            raise SceneError(f"{where}: a {kind} needs a radius")
+        radius = _get(t, "radius", where, 0.0, 0.0, MAX_COORD_M, above=True)
     if kind == "box":
-        size = _vec(t.get("size"), f"{where}.size")
+        if "size" not in t:
+            raise SceneError(f"{where}: a box needs a size [x, y, z]")
+        size = _vec(t["size"], f"{where}.size")
+        if (size <= 0).any():
+            raise SceneError(f"{where}.size must be three positive numbers, not {_show(t['size'])}")
         shape = Box(*(float(x) / 2.0 for x in size))
     elif kind == "sphere":
-        shape = Sphere(float(t["radius"]))
+        shape = Sphere(radius)
     elif kind == "cylinder":
-        shape = Cylinder(float(t["radius"]), length / 2.0)
+        if length <= 0:
+            raise SceneError(f"{where}: a cylinder needs a positive length (or from and to)")
+        shape = Cylinder(radius, length / 2.0)
     elif kind == "capsule":
-        shape = Capsule(float(t["radius"]), length / 2.0)
+        shape = Capsule(radius, length / 2.0)
     elif kind == "plane":
         shape = Plane()
     else:
-        raise SceneError(f"{where}: shape must be box, sphere, cylinder, capsule or plane")
+        raise SceneError(
+            f"{where}: shape must be box, sphere, cylinder, capsule or plane, not {_show(kind)}"
+        )
     return shape, Pose(rot, pos)
 
 
-def _swing(t: Table | None) -> Swing | None:
-    if t is None:
+def _swing(value: Any, where: str) -> Swing | None:
+    if value is None:
         return None
-    axis = _vec(t["axis"], "swing.axis")
-    pivot = _vec(t.get("pivot", [0.0, 0.0, 0.0]), "swing.pivot")
+    where = f"{where}.swing"
+    t = _table(value, where)
+    _check_keys(t, _SWING_KEYS, where)
+    if "axis" not in t or "amplitude_deg" not in t or "period_s" not in t:
+        raise SceneError(f"{where} needs axis, amplitude_deg and period_s")
+    axis = _vec(t["axis"], f"{where}.axis")
+    if float(np.linalg.norm(axis)) < 1e-9:
+        raise SceneError(f"{where}.axis must not be zero")
+    pivot = _vec(t.get("pivot", [0.0, 0.0, 0.0]), f"{where}.pivot")
     return Swing(
         (float(axis[0]), float(axis[1]), float(axis[2])),
-        float(t["amplitude_deg"]),
-        float(t["period_s"]),
-        float(t.get("phase_deg", 0.0)),
+        _get(t, "amplitude_deg", where, 0.0, -MAX_ANGLE_DEG, MAX_ANGLE_DEG),
+        _get(t, "period_s", where, 0.0, 0.0, MAX_TIME_S, above=True),
+        _get(t, "phase_deg", where, 0.0, -MAX_ANGLE_DEG, MAX_ANGLE_DEG),
         (float(pivot[0]), float(pivot[1]), float(pivot[2])),
     )
+
+
+def _waypoints(value: Any, where: str) -> tuple[tuple[float, float, float, float, float], ...]:
+    what = f"{where}.waypoints"
+    if not isinstance(value, list) or len(value) > MAX_COUNT:
+        raise SceneError(f"{what} must be a list of at most {MAX_COUNT} [t, x, y, z, yaw_deg]")
+    out = []
+    for w in value:
+        if not isinstance(w, list) or len(w) != 5:
+            raise SceneError(f"{what}: each waypoint is [t, x, y, z, yaw_deg], not {_show(w)}")
+        t = _number(w[0], what, 0.0, MAX_TIME_S)
+        x, y, z = (_number(v, what) for v in w[1:4])
+        yaw = _number(w[4], what, -MAX_ANGLE_DEG, MAX_ANGLE_DEG)
+        out.append((t, x, y, z, yaw))
+    if any(b[0] <= a[0] for a, b in itertools.pairwise(out)):
+        raise SceneError(f"{what}: the times must increase")
+    return tuple(out)
 
 
 def _motion(t: Table, where: str) -> Motion:
     kind = t.get("motion", "static")
     if kind not in ("static", "belt", "linear", "path"):
-        raise SceneError(f"{where}: motion must be static, belt, linear or path")
+        raise SceneError(f"{where}: motion must be static, belt, linear or path, not {_show(kind)}")
     vel = _vec(t.get("velocity", [0.0, 0.0, 0.0]), f"{where}.velocity")
-    listed = [tuple(float(x) for x in w) for w in t.get("waypoints", [])]
-    if kind == "path" and (len(listed) < 2 or any(len(w) != 5 for w in listed)):
+    listed = _waypoints(t.get("waypoints", []), where)
+    if kind == "path" and len(listed) < 2:
         raise SceneError(f"{where}: a path needs two or more waypoints [t, x, y, z, yaw_deg]")
     return Motion(
         kind,
         (float(vel[0]), float(vel[1]), float(vel[2])),
-        float(t.get("period_s", 0.0)),
-        tuple((w[0], w[1], w[2], w[3], w[4]) for w in listed if len(w) == 5),
+        _get(t, "period_s", where, 0.0, 0.0, MAX_TIME_S),
+        listed,
     )
 
 
 def _object(t: Table, object_id: int) -> SceneObject:
-    name = str(t.get("name", f"object-{object_id}"))
-    where = f"object {name!r}"
-    _check_keys(t, _OBJECT_KEYS, where)
-    albedo = float(t.get("albedo", 0.45))
-    start = Pose(
-        rotation_xyz_deg(t.get("rotation_deg", [0.0, 0.0, 0.0])),
-        _vec(t.get("position", [0.0, 0.0, 0.0]), f"{where}.position"),
-    )
+    name = _text(t, "name", f"object {object_id}", f"object-{object_id}")
+    where = f"object {_show(name)}"
+    _check_keys(t, _OBJECT_KEYS, where, {"part": "[[object.part]]"})
+    albedo = _albedo(t, "albedo", where, 0.45)
+    start = Pose(_rotation(t, where), _vec(t.get("position", [0.0, 0.0, 0.0]), f"{where}.position"))
+    target = t.get("target", False)
+    if not isinstance(target, bool):
+        raise SceneError(f"{where}.target must be true or false, not {_show(target)}")
     parts: list[Part] = []
     if "shape" in t:
         shape, _ = _shape_and_pose({k: v for k, v in t.items() if k in _SHAPE}, where)
         parts.append(Part(shape, Pose.identity(), albedo))
-    for i, p in enumerate(t.get("part", [])):
+    for i, p in enumerate(_tables(t.get("part", []), "object.part")):
         pw = f"{where} part {i}"
         _check_keys(p, _PART_KEYS, pw)
         shape, pose = _shape_and_pose(p, pw)
         if isinstance(shape, Plane):
             raise SceneError(f"{pw}: objects are solids; planes are background surfaces")
-        parts.append(Part(shape, pose, float(p.get("albedo", albedo)), _swing(p.get("swing"))))
+        parts.append(
+            Part(shape, pose, _albedo(p, "albedo", pw, albedo), _swing(p.get("swing"), pw))
+        )
     if not parts:
         raise SceneError(f"{where} has no shape and no parts")
     return SceneObject(
-        object_id, name, tuple(parts), start, _motion(t, where), _swing(t.get("swing")),
-        bool(t.get("target", False)),
+        object_id, name, tuple(parts), start, _motion(t, where), _swing(t.get("swing"), where),
+        target,
     )  # fmt: skip
 
 
 def _belt_surfaces(t: Table) -> tuple[Belt, list[Surface]]:
     """The belt and what stands around it: floor, belt slab, side rails, legs."""
     _check_keys(t, _BELT_KEYS, "belt")
+    if "width" not in t:
+        raise SceneError("belt: width is required")
     belt = Belt(
-        float(t["width"]), float(t.get("speed", 0.0)), float(t.get("top_z", 0.0)),
-        float(t.get("loop", 4.0)), float(t.get("loop_start", -2.0)), float(t.get("albedo", 0.45)),
+        _get(t, "width", "belt", 0.0, 0.0, MAX_COORD_M, above=True),
+        _get(t, "speed", "belt", 0.0),
+        _get(t, "top_z", "belt", 0.0),
+        _get(t, "loop", "belt", 4.0, 0.0, MAX_COORD_M, above=True),
+        _get(t, "loop_start", "belt", -2.0),
+        _albedo(t, "albedo", "belt", 0.45),
     )  # fmt: skip
-    length = float(t.get("length", 6.0))
-    floor_z = float(t.get("floor_z", -0.8))
-    stand = float(t.get("stand_albedo", 0.35))
+    length = _get(t, "length", "belt", 6.0, 0.0, MAX_BELT_LENGTH_M, above=True)
+    floor_z = _get(t, "floor_z", "belt", -0.8)
+    if floor_z >= belt.top_z - 0.1:
+        raise SceneError(f"belt.floor_z ({floor_z:g}) must be at least 0.1 m below top_z")
+    stand = _albedo(t, "stand_albedo", "belt", 0.35)
     eye = np.eye(3)
     top, half_w = belt.top_z, belt.width_m / 2.0
     out = [
         Surface("floor", Plane(), Pose(eye, np.array([0.0, 0.0, floor_z])),
-                float(t.get("floor_albedo", 0.3))),
+                _albedo(t, "floor_albedo", "belt", 0.3)),
         Surface("belt", Box(length / 2, half_w, 0.02), Pose(eye, np.array([0.0, 0.0, top - 0.02])),
                 belt.albedo),
     ]  # fmt: skip
@@ -243,73 +398,117 @@ def _belt_surfaces(t: Table) -> tuple[Belt, list[Surface]]:
 
 def _settings(cam: Table) -> CameraSettings:
     if "mod_code" in cam:
-        code = int(cam["mod_code"])
+        code = int(_number(cam["mod_code"], "camera.mod_code", 0, 255, integer=True))
     else:
-        mhz = float(cam.get("mod_freq_mhz", 30.0))
+        mhz = _get(cam, "mod_freq_mhz", "camera", 30.0, 0.0, 1000.0)
         codes = [c for c, f in MOD_FREQ_MHZ.items() if abs(f - mhz) < 1e-6]
         if not codes:
             raise SceneError(
-                f"camera.mod_freq_mhz {mhz} is not one of {sorted(MOD_FREQ_MHZ.values())}"
+                f"camera.mod_freq_mhz {mhz:g} is not one of {sorted(MOD_FREQ_MHZ.values())}"
             )
         code = codes[0]
     if code not in MOD_FREQ_MHZ:
         raise SceneError(f"camera.mod_code {code} is not supported")
-    integration = int(cam.get("integration", 30))
-    if not 0 <= integration <= 255:
-        raise SceneError("camera.integration must be 0..255")
-    fps = float(cam.get("fps", 50.0))
+    integration = int(
+        _number(cam.get("integration", 30), "camera.integration", 0, 255, integer=True)
+    )
+    fps = _get(cam, "fps", "camera", 50.0, 1e4 / MAX_PERIOD_100US, 1e4 / MIN_PERIOD_100US)
     return CameraSettings(code, integration, round(1e4 / fps))
 
 
+def _lens(cam: Table) -> LensSpec:
+    values: dict[str, Any] = {}
+    for f in fields(LensSpec):
+        if f.name not in cam:
+            continue
+        what = f"camera.{f.name}"
+        if f.name in _LENS_INTS:
+            values[f.name] = int(_number(cam[f.name], what, 1, 0xFFFF, integer=True))
+        elif f.name in ("fx", "fy"):
+            values[f.name] = _number(cam[f.name], what, 1.0, 1e6)
+        elif f.name in ("cx", "cy"):
+            values[f.name] = _number(cam[f.name], what, -1e5, 1e5)
+        elif f.name in ("distance_offset_m",):
+            values[f.name] = _number(cam[f.name], what, -100.0, 100.0)
+        elif f.name.endswith("_rad"):
+            values[f.name] = _number(cam[f.name], what, 0.0, 10.0)
+        else:  # distortion
+            values[f.name] = _number(cam[f.name], what, -100.0, 100.0)
+    lens = LensSpec(**values)
+    if why := check_sensor_size(lens.width, lens.height):
+        raise SceneError(f"camera: {why}")
+    return lens
+
+
+def _sensor(doc: Table) -> SensorSpec:
+    t = _table(doc.get("sensor", {}), "[sensor]")
+    _check_keys(t, set(_SENSOR_RANGES), "sensor")
+    values: dict[str, Any] = {}
+    for key, value in t.items():
+        lo, hi = _SENSOR_RANGES[key]
+        integer = isinstance(lo, int) and isinstance(hi, int)
+        x = _number(value, f"sensor.{key}", lo, hi, integer=integer)
+        values[key] = int(x) if integer else x
+    return SensorSpec(**values)
+
+
 def parse_scene(doc: Table, name: str = "scene") -> Scene:
-    """Build a scene from a parsed TOML document."""
-    cam = dict(doc.get("camera", {}))
+    """Build a scene from a parsed TOML document; `SceneError` (one line) for anything off."""
+    _check_keys(doc, set(_TOP_FORMS), "the scene", _TOP_FORMS)
+    cam = _table(doc.get("camera", {}), "[camera]")
     lens_fields = {f.name for f in fields(LensSpec)}
     _check_keys(cam, _CAMERA_KEYS | lens_fields, "camera")
-    lens = LensSpec(**{k: v for k, v in cam.items() if k in lens_fields})
-    sensor_doc = doc.get("sensor", {})
-    _check_keys(sensor_doc, {f.name for f in fields(SensorSpec)}, "sensor")
-    sensor = SensorSpec(**sensor_doc)
-    camera_from_world = look_at(
-        _vec(cam.get("position", [0.0, -0.55, 1.25]), "camera.position"),
-        _vec(cam.get("look_at", [0.0, 0.0, 0.0]), "camera.look_at"),
-        _vec(cam.get("up", [0.0, 0.0, 1.0]), "camera.up"),
-    )
+    lens = _lens(cam)
+    sensor = _sensor(doc)
+    position = _vec(cam.get("position", [0.0, -0.55, 1.25]), "camera.position")
+    target = _vec(cam.get("look_at", [0.0, 0.0, 0.0]), "camera.look_at")
+    up = _vec(cam.get("up", [0.0, 0.0, 1.0]), "camera.up")
+    view = target - position
+    if float(np.linalg.norm(view)) < 1e-6:
+        raise SceneError("camera.position and camera.look_at are the same point")
+    cross = float(np.linalg.norm(np.cross(view / np.linalg.norm(view), up)))
+    if cross < 1e-6 * max(float(np.linalg.norm(up)), 1e-300):
+        raise SceneError("camera.up must not be zero or along the view (position → look_at)")
+    camera_from_world = look_at(position, target, up)
     belt = None
     surfaces: list[Surface] = []
     if "belt" in doc:
-        belt, surfaces = _belt_surfaces(doc["belt"])
-    for i, s in enumerate(doc.get("surface", [])):
+        belt, surfaces = _belt_surfaces(_table(doc["belt"], "[belt]"))
+    for i, s in enumerate(_tables(doc.get("surface", []), "surface")):
         where = f"surface {i}"
         _check_keys(s, _SURFACE_KEYS, where)
         shape, pose = _shape_and_pose(s, where)
         surfaces.append(
-            Surface(str(s.get("name", f"surface-{i}")), shape, pose, float(s.get("albedo", 0.4)))
-        )
-    objects = tuple(_object(t, i + 1) for i, t in enumerate(doc.get("object", [])))
+            Surface(_text(s, "name", where, f"surface-{i}"), shape, pose,
+                    _albedo(s, "albedo", where, 0.4))
+        )  # fmt: skip
+    objects = tuple(
+        _object(t, i + 1) for i, t in enumerate(_tables(doc.get("object", []), "object"))
+    )
     if sum(o.target for o in objects) > 1:
         raise SceneError("at most one object can be the target")
     if any(o.motion.kind == "belt" for o in objects) and belt is None:
         raise SceneError("objects ride a belt, but there is no [belt]")
-    duration = float(doc.get("duration_s", 10.0))
-    if duration <= 0:
-        raise SceneError("duration_s must be positive")
+    duration = _get(doc, "duration_s", "scene", 10.0, 0.0, MAX_TIME_S, above=True)
     return Scene(
-        str(doc.get("name", name)), str(doc.get("description", "")), duration, lens,
-        camera_from_world, _settings(cam), sensor, belt, tuple(surfaces), objects,
+        _text(doc, "name", "scene", name), _text(doc, "description", "scene", ""), duration,
+        lens, camera_from_world, _settings(cam), sensor, belt, tuple(surfaces), objects,
     )  # fmt: skip
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Read and build a scene file."""
+    """Read and build a scene file; `SceneError` (one line, naming the file) if it cannot be."""
     p = Path(path)
     try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-        return parse_scene(doc, p.stem)
-    except tomllib.TOMLDecodeError as exc:
+        doc = read_toml(p, MAX_FILE_BYTES)
+    except OSError as exc:
+        raise SceneError(f"{p}: {exc.strerror or exc}") from None
+    except ValueError as exc:
         raise SceneError(f"{p}: {exc}") from None
-    except (KeyError, TypeError) as exc:
-        raise SceneError(f"{p}: missing or malformed {exc}") from None
+    try:
+        return parse_scene(doc, p.stem)
+    except SceneError as exc:
+        raise SceneError(f"{p}: {exc}") from None
 
 
 def _toml_value(value: Any, where: str) -> str:

@@ -12,6 +12,7 @@ import pytest
 
 from tofcut.driver.belt import BeltReading, KnownBelt
 from tofcut.driver.belt_log import (
+    PENDING_KEPT,
     BeltLogError,
     BeltLogReader,
     BeltLogWriter,
@@ -271,6 +272,22 @@ def test_good_lines_read_back_as_they_were_written(tmp_path):
     assert entries[2].time_ns == 1_001 * MS
     assert entries[2].belt.to_dict() == found.to_dict()
     assert entries[2].belt.source == "found"
+
+
+def test_lines_before_the_header_are_bounded_to_the_newest(tmp_path):
+    """A link that polls long before the camera opens must not grow memory without end."""
+    path = tmp_path / "run.conveyor.jsonl"
+    n = PENDING_KEPT + 250
+    with BeltLogWriter(path) as log:
+        for i in range(n):
+            log.reading(BeltReading(i * MS, i, i * 1e-4, 0.1, True, False))
+        assert len(log._pending) == PENDING_KEPT
+        assert log.pending_dropped == 250
+        log.begin(port="p", exposure_offset_ns=None, max_extrapolation_s=0.5)
+    entries = list(BeltLogReader(path))
+    assert len(entries) == 1 + PENDING_KEPT
+    assert entries[1].count == 250  # the newest were kept
+    assert entries[-1].count == n - 1
 
 
 def test_the_replay_answers_as_the_live_link_did(tmp_path):

@@ -23,8 +23,8 @@ from pymodbus.framer.rtu import FramerRTU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from tofcut.driver.conveyor import ConveyorClient
-from tofcut.driver.conveyor_map import LinkSettings, RegisterMap
+from tofcut.driver.conveyor import COMMANDS_KEPT, ConveyorClient
+from tofcut.driver.conveyor_map import LINK_RANGES, LinkSettings, RegisterMap
 from tofcut.driver.errors import LinkError
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_rtu import crc16
@@ -204,6 +204,52 @@ def test_a_silent_controller_is_counted_and_never_blocks_the_caller(tmp_path):
         assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
         assert client.stats.link_up
         assert conveyor.diverter_commands == []  # a late push would hit the wrong object
+
+
+def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(tmp_path):
+    with pty_line(tmp_path, timeout_s=10.0, retries=10) as (conveyor, server, client, _now):
+        fresh(client, conveyor)
+        server.silent = True
+        asked = server.stats.requests
+        deadline = time.monotonic() + WAIT_S
+        while server.stats.requests == asked:  # a request is now waiting for its 10 s timeout
+            assert time.monotonic() < deadline
+            time.sleep(0.001)
+        closer = threading.Thread(target=client.close, kwargs={"deadline_s": 0.5})
+        start = time.monotonic()
+        closer.start()
+        closer.join(WAIT_S)
+        assert not closer.is_alive(), "close() waited on the silent controller"
+        assert time.monotonic() - start < 0.5 + 2.0  # the deadline, and a busy machine's slack
+        assert client._abandoned is not None
+        assert client._abandoned.is_alive()
+        assert client.stats.timeouts == 0  # the request was abandoned, not timed out
+
+
+@pytest.mark.parametrize("heartbeat_s", [LINK_RANGES["heartbeat_s"][0], 1e-6])
+def test_a_fast_heartbeat_does_not_starve_the_polls(tmp_path, heartbeat_s):
+    """The fastest heartbeat a map may ask for, and (past the check) one always due."""
+    conveyor = EmulatedConveyor(0.25)
+    link = replace(FAST_LINK, heartbeat_s=LINK_RANGES["heartbeat_s"][0])
+    object.__setattr__(link, "heartbeat_s", heartbeat_s)
+    with PtyModbusServer(conveyor, link=tmp_path / "ttyCONV0").start() as server:
+        object.__setattr__(link, "port", server.port)
+        with ConveyorClient(link) as client:
+            stats = client.wait_stats(lambda s: s.readings >= 20 and s.heartbeats >= 20, WAIT_S)
+    assert stats.readings >= 20, stats
+    assert stats.heartbeats >= 20, stats
+
+
+def test_diverter_commands_queued_behind_a_stuck_link_are_bounded(tmp_path):
+    with pty_line(tmp_path, timeout_s=10.0) as (conveyor, server, client, _now):
+        fresh(client, conveyor)
+        server.silent = True  # the link now waits up to 10 s for each reply
+        for tag in range(COMMANDS_KEPT + 100):
+            client.divert(tag)
+        with client._lock:
+            assert len(client._commands) <= COMMANDS_KEPT
+        assert client.stats.diverter_late >= 99  # the oldest, dropped; one may be in flight
+    assert conveyor.diverter_commands == []
 
 
 def test_the_port_vanishes_and_comes_back(tmp_path):

@@ -88,9 +88,16 @@ def test_a_map_file(tmp_path):
     ("doc", "message"),
     [
         ({"link": {"parity": "X"}}, "parity must be N, E or O"),
-        ({"link": {"baud": 9600}}, "unknown keys ['baud']"),
+        ({"link": {"baud": 9600}}, "unknown key 'baud'; did you mean baudrate?"),
         ({"link": {"unit": 0}}, "unit must be an integer in 1..247"),
-        ({"link": {"poll_hz": 0}}, "poll_hz must be a positive number"),
+        ({"link": {"poll_hz": 0}}, "poll_hz must be in 0.1..1000"),
+        ({"link": {"poll_hz": 1e300}}, "poll_hz must be in 0.1..1000"),
+        ({"link": {"poll_hz": 10**400}}, "poll_hz must be a finite number"),
+        ({"link": {"timeout_s": 60}}, "timeout_s must be in 0.001..10"),
+        ({"link": {"timeout_s": 1e-7}}, "timeout_s must be in 0.001..10"),
+        ({"link": {"heartbeat_s": 1e-6}}, "heartbeat_s must be in 0.01..3600 (or 0: none)"),
+        ({"link": {"heartbeat_s": -1}}, "heartbeat_s must be in 0.01..3600"),
+        ({"link": {"reopen_s": 1e9}}, "reopen_s must be in 0.01..60"),
         ({"link": {"port": "tcp://:x"}}, "is not tcp://HOST:PORT"),
         ({"registers": {"speed": 1}}, "registers overlap"),
         ({"registers": {"encoder": 65535}}, "needs two registers"),
@@ -100,7 +107,8 @@ def test_a_map_file(tmp_path):
         ({"belt": {"direction": [1, 0, 0]}}, "give direction, normal and point together"),
         ({"belt": {"direction": [0, 0, 1], "normal": [0, 0, 1], "point": [0, 0, 1]}},
          "must not be along its normal"),
-        ({"conveyor": {}}, "unknown keys ['conveyor']"),
+        ({"conveyor": {}}, "unknown table [conveyor]; known: [belt], [link], [registers]"),
+        ({"links": {}}, "unknown table [links]; did you mean [link]?"),
     ],
 )  # fmt: skip
 def test_bad_map_files_are_refused_clearly(doc, message):
@@ -115,6 +123,26 @@ def test_a_missing_or_broken_map_file(tmp_path):
     broken.write_text("[link\n")
     with pytest.raises(ConfigError, match=r"broken\.toml"):
         load_conveyor_config(broken)
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe", "not a text file"),
+        (b"[link]\nport = '\x00'\n", "not a text file"),
+        (b"a = " + b"[" * 5000 + b"]" * 5000, "nested too deep"),
+        (b"# " + b"x" * (2 << 20), "larger than"),
+        (b"[link]\npoll_hz = " + b"9" * 5000, "integer string conversion"),
+    ],
+    ids=["binary", "nul", "deep", "huge", "long-int"],
+)
+def test_a_map_file_that_is_not_a_map_is_a_one_line_error(tmp_path, data, message):
+    path = tmp_path / "map.toml"
+    path.write_bytes(data)
+    with pytest.raises(ConfigError, match=re.escape(message)) as info:
+        load_conveyor_config(path)
+    assert "\n" not in str(info.value)
+    assert str(info.value).startswith(str(path))
 
 
 def test_tcp_addresses():

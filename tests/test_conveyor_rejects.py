@@ -15,8 +15,8 @@ from tofcut.driver.conveyor_map import LinkSettings
 from tofcut.driver.errors import ConfigError
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_server import PtyModbusServer
-from tofcut.tracker.reject_rule import RejectRule, hull_area, measure_track
-from tofcut.tracker.rejects import RejectScheduler
+from tofcut.tracker.reject_rule import MAX_NESTING, RejectRule, hull_area, measure_track
+from tofcut.tracker.rejects import CANDIDATES_KEPT, RejectScheduler
 from tofcut.tracker.tracks import Track
 
 WAIT_S = 5.0
@@ -132,6 +132,25 @@ def test_bad_rules_are_refused_clearly(text, message):
         RejectRule.parse(text)
 
 
+@pytest.mark.parametrize(
+    "text",
+    ["(" * 10_000 + "height > 1" + ")" * 10_000, "not " * 10_000 + "height > 1"],
+    ids=["parentheses", "nots"],
+)
+def test_deep_nesting_is_a_one_line_error_not_a_recursion_error(text):
+    with pytest.raises(ConfigError, match=f"more than {MAX_NESTING} deep") as info:
+        RejectRule.parse(text)
+    assert "\n" not in str(info.value)
+    assert len(str(info.value)) < 200  # the rule is shortened in the message
+
+
+def test_nesting_up_to_the_bound_is_fine():
+    m = measure_track(box_track(1, 0.0, (0.3, 0.2, 0.1), noise_m=0.0), BELT)
+    half = MAX_NESTING // 2
+    text = "not " * half + "(" * half + "height > 0.08" + ")" * half
+    assert RejectRule.parse(text)(m) is True  # an even number of nots
+
+
 # --- the scheduler, on a belt given as a function ---------------------------------------
 
 
@@ -196,6 +215,23 @@ def test_a_long_run_keeps_the_newest_rejects_and_counts_them_all(monkeypatch):
     assert [e.track_id for e in fired] == [1, 2, 3, 4]
     assert [e.track_id for e in scheduler.events] == [3, 4]
     assert scheduler.stats.fired == 4
+
+
+def test_objects_that_never_reach_the_diverter_are_bounded_and_keep_no_point_cloud():
+    """A stuck encoder: the belt never moves, so no object reaches the diverter."""
+    scheduler = RejectScheduler(
+        RejectRule.parse("height > 0.08"), BELT, 0.6, Belt(0.0).at, lambda e: None
+    )
+    n = CANDIDATES_KEPT + 300
+    for i in range(1, n + 1):
+        scheduler.observe([box_track(i, 0.0, (0.08, 0.08, 0.12), n=20)], i * 10**6)
+        scheduler.on_reading(Belt(0.0).at(i * 10**6))
+    candidates = scheduler._candidates
+    assert len(candidates) == CANDIDATES_KEPT
+    assert min(candidates) == n - CANDIDATES_KEPT + 1  # the newest are kept
+    assert scheduler.stats.forgotten == 300
+    assert all(len(c.best.track.points) == 0 for c in candidates.values())
+    assert scheduler.stats.fired == 0
 
 
 def test_a_python_callable_as_the_rule_and_the_majority_of_views_decides():

@@ -20,11 +20,14 @@ from tofcut.driver.demod import Optics
 from tofcut.driver.errors import CaptureError, ProtocolError
 from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
+    MAX_SENSOR_PIXELS,
     MOD_FREQ_MHZ,
     DeviceInfo,
     FrameHeader,
     crc32,
     pack_header,
+    pack_info,
+    parse_info,
 )
 from tofcut.driver.stream import FrameParser
 from tofcut.sim.pattern import pattern_calibration
@@ -378,9 +381,9 @@ def test_deeply_nested_metadata_is_a_capture_error(tmp_path):
         CaptureReader(path)
 
 
-BIG_META = {"serial": "1", "firmware": 1, "protocol": 1, "width": 4096, "height": 4096,
+BIG_META = {"serial": "1", "firmware": 1, "protocol": 1, "width": 1448, "height": 1448,
             "registers": {}}  # fmt: skip
-BIG_CALIB = CALIB_HEADER_SIZE + 2 * 4096 * 4096
+BIG_CALIB = CALIB_HEADER_SIZE + 2 * 1448 * 1448  # the largest sensor the protocol allows
 
 
 @pytest.mark.parametrize(
@@ -405,6 +408,29 @@ def test_lengths_in_the_file_are_checked_before_anything_is_allocated(
     finally:
         tracemalloc.stop()
     assert peak < 200_000  # the lengths claim up to 4 GiB; nothing near that is touched
+
+
+@pytest.mark.parametrize("size", [(4096, 4096), (2048, 1025), (1449, 1448)])
+def test_a_sensor_larger_than_the_protocol_allows_is_refused(tmp_path, size):
+    """READ_FLASH's 16-bit block number bounds the calibration block, so the pixels."""
+    w, h = size
+    assert w * h > MAX_SENSOR_PIXELS
+    meta = json.dumps({**BIG_META, "width": w, "height": h}).encode()
+    path = tmp_path / "big.tofcap"
+    path.write_bytes(MAGIC + struct.pack("<I", len(meta)) + meta)
+    with pytest.raises(CaptureError, match=f"more than {MAX_SENSOR_PIXELS} pixels"):
+        CaptureReader(path)
+    info = DeviceInfo(1, 1, 1, w, h, CALIB_HEADER_SIZE + 2 * w * h, 54)
+    with pytest.raises(ProtocolError, match="pixels"):
+        parse_info(pack_info(info))
+    header = struct.pack("<4sHHHHB3x9ff4x", b"SRCB", 1, CALIB_HEADER_SIZE, w, h, 1, *[1.0] * 10)
+    with pytest.raises(ProtocolError, match="pixels"):
+        parse_calibration(header + struct.pack("<I", 0))
+
+
+def test_the_largest_sensor_is_1448_square():
+    assert 1448 * 1448 <= MAX_SENSOR_PIXELS < 1449 * 1448
+    assert CALIB_HEADER_SIZE + 2 * MAX_SENSOR_PIXELS <= 64 * 0x10000
 
 
 # --- the calibration reader ---------------------------------------------------------------

@@ -16,7 +16,7 @@ from tofcut.tools import cmd_record, cmd_track
 from tofcut.tools.cli import main
 from tofcut.tools.latency import LatencyHistogram
 from tofcut.tools.losses import describe_losses, format_ranges
-from tofcut.tools.pipeline import EventRelay
+from tofcut.tools.pipeline import EVENTS_QUEUED, EventRelay
 from tofcut.tools.rerun_log import STATUS_EVERY
 from tofcut.tools.sources import open_source
 from tofcut.tracker.tracker import Tracker
@@ -113,6 +113,27 @@ def test_the_event_relay_hands_on_every_event_in_order_off_the_posting_thread():
     relay.close()
     assert [d for d, _ in seen] == [e.detail for e in events]
     assert {name for _, name in seen} == {"tofcut-events"}
+
+
+def test_the_event_relay_keeps_at_most_its_bound_and_counts_the_rest():
+    relay = EventRelay()
+    n = EVENTS_QUEUED + 300
+    for i in range(n):  # nothing takes them yet: a stuck console, or before start
+        relay.post(DeviceEvent(EventKind.STALL_CLEARED, i, f"stall {i}"))
+    assert relay.dropped == 300
+    seen: list[str] = []
+    relay.start([lambda e: seen.append(e.detail)])
+    relay.close()
+    assert seen == [f"stall {i}" for i in range(EVENTS_QUEUED)]
+
+
+def test_after_a_handler_failed_the_relay_drains_what_is_posted():
+    relay = EventRelay().start([lambda e: (_ for _ in ()).throw(OSError("console gone"))])
+    for i in range(3 * EVENTS_QUEUED):
+        relay.post(DeviceEvent(EventKind.RESET, i, "reset"))
+    with pytest.raises(OSError, match="console gone"):
+        relay.close()
+    assert relay._queue.qsize() == 0
 
 
 def test_the_event_relay_raises_what_a_handler_raised_at_close():

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import threading
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 import pytest
 import rerun as rr
+import rerun.blueprint as rrb
 import rerun_cli
 from rerun.chunk import RrdReader
 
@@ -755,3 +757,111 @@ def test_a_recording_on_stdout_carries_nothing_else(tmp_path):
     checked = rrd_verify(path)
     assert checked.returncode == 0, checked.stdout + checked.stderr
     assert len(frame_sequences(path)) == 12
+
+
+def test_a_device_timestamp_past_rerun_s_range_costs_that_field_not_the_run(tmp_path, capsys):
+    """A u64 device time ≥ 2^63 made rerun fail ('int too big to convert') and `track` exit 1.
+    The frame is now logged on its sequence and log time, without device_time, and counted."""
+    from dataclasses import replace
+
+    from tofcut.driver.capture import CaptureReader, CaptureWriter
+    from tofcut.driver.protocol import HEADER_SIZE, pack_header
+    from tofcut.tools.cli import main
+
+    cap = tmp_path / "run.tofcap"
+    assert main(["record", "emulator:test-pattern", "-o", str(cap), "--frames", "8", "--fast"]) == 0
+    reader = CaptureReader(cap)
+    odd = tmp_path / "odd.tofcap"
+    odd_sequences = set()
+    with CaptureWriter(odd, reader.capture.metadata, reader.capture.calibration_block) as out:
+        for i, raw in enumerate(reader.raw_frames()):
+            if i in (3, 4):
+                stamp = 2**63 + i if i == 3 else 2**64 - 1
+                header = replace(raw.header, device_time_us=stamp)
+                raw = replace(raw, header=header, wire=pack_header(header) + raw.wire[HEADER_SIZE:])
+                odd_sequences.add(raw.sequence)
+            out.write(raw)
+    rrd = tmp_path / "odd.rrd"
+    capsys.readouterr()
+    assert main(["track", str(odd), "--save", str(rrd)]) == 0
+    printed = capsys.readouterr().out
+    assert "8 of 8 frames written" in printed
+    assert "2 without a device time" in printed
+    on_sequence = rows_on(rrd, "world/camera/depth", "DepthImage:buffer")
+    assert len(on_sequence) == 8
+    device = all_rows(rrd, "world/camera/depth", "DepthImage:buffer", timeline="device_time")
+    assert sum(t is None for t, _ in device) == 2  # the two odd frames, off that timeline
+    assert len([t for t, _ in device if t is not None]) == 6
+
+
+def _listening_sockets() -> set[tuple[str, str]]:
+    """(table, local address) of every listening TCP socket this process holds."""
+    ours = set()
+    for fd in Path("/proc/self/fd").iterdir():
+        try:
+            link = os.readlink(fd)
+        except OSError:
+            continue
+        if link.startswith("socket:["):
+            ours.add(link[8:-1])
+    found = set()
+    for table in ("tcp", "tcp6"):
+        for line in Path(f"/proc/self/net/{table}").read_text().splitlines()[1:]:
+            cols = line.split()
+            if cols[3] == "0A" and cols[9] in ours:  # 0A: LISTEN
+                found.add((table, cols[1]))
+    return found
+
+
+def test_serve_listens_on_loopback_only_by_default(monkeypatch):
+    web_viewers = []
+    monkeypatch.setattr(rr, "serve_web_viewer", lambda **kw: web_viewers.append(kw))
+    target = target_from_args(parse("--serve"), NOW)
+    assert target == RerunTarget("serve", bind="127.0.0.1")
+    assert "to this machine only" in target.describe()
+    assert "until Ctrl-C" in target.describe()
+    before = _listening_sockets()
+    rec = rr.RecordingStream("tofcut-test-serve")
+    target = dataclasses.replace(target, port=0)  # any free port
+    target.attach(rec, rrb.Blueprint())
+    try:
+        deadline = time.monotonic() + 10.0
+        while not (new := _listening_sockets() - before):
+            assert time.monotonic() < deadline, "the gRPC server never listened"
+            time.sleep(0.01)
+        assert all(table == "tcp" and addr.startswith("0100007F:") for table, addr in new), new
+        assert web_viewers == []  # rerun's web viewer binds every interface: not by default
+    finally:
+        rec.disconnect()
+
+
+def test_bind_opens_serve_wider_with_a_warning(monkeypatch, capsys):
+    sinks, web_viewers = [], []
+
+    class FakeSink:
+        def __init__(self, bind_ip: str, port: int) -> None:
+            sinks.append((bind_ip, port))
+            self.uri = f"rerun+http://{bind_ip}:{port}/proxy"
+
+    monkeypatch.setattr(rr, "GrpcServerSink", FakeSink)
+    monkeypatch.setattr(rr, "serve_web_viewer", lambda **kw: web_viewers.append(kw))
+    monkeypatch.setattr(rr.RecordingStream, "set_sinks", lambda self, *a, **k: None)
+    target = target_from_args(parse("--serve", "--bind", "0.0.0.0"), NOW)
+    assert target.bind == "0.0.0.0"
+    target.attach(rr.RecordingStream("tofcut-test-bind"), rrb.Blueprint())
+    assert sinks == [("0.0.0.0", 9876)]
+    assert len(web_viewers) == 1
+    warning = capsys.readouterr().err
+    assert warning.startswith("warning: --bind 0.0.0.0:")
+    assert warning.count("\n") == 1
+    with pytest.raises(SystemExit):
+        parse("--serve", "--bind", "everywhere")
+
+
+def test_the_help_says_what_serve_exposes_and_for_how_long():
+    parser = argparse.ArgumentParser()
+    add_rerun_options(parser)
+    text = " ".join(parser.format_help().split())
+    assert "without authentication" in text
+    assert "until Ctrl-C after it" in text
+    assert "127.0.0.1" in text

@@ -11,7 +11,7 @@ from tofcut.driver.calibration import pixel_rays, project
 from tofcut.sim import load_truth, open_scene, save_truth, scene_names
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
-from tofcut.sim.scene_file import SceneError, parse_scene
+from tofcut.sim.scene_file import SceneError, load_scene, parse_scene, scene_toml
 from tofcut.sim.truth import truth_path
 
 BUILT_IN = ["conveyor", "paper-fig1", "paper-fig3", "person", "robot", "tools"]
@@ -144,7 +144,7 @@ def test_truth_file_round_trips(tmp_path):
 
 
 def test_scene_file_mistakes_are_reported():
-    with pytest.raises(SceneError, match="unknown keys"):
+    with pytest.raises(SceneError, match="unknown key 'colour'"):
         parse_scene(
             tomllib.loads(ROOM + '[[object]]\nshape = "box"\nsize = [1, 1, 1]\ncolour = 3\n')
         )
@@ -162,3 +162,123 @@ def test_scenes_command_writes_pictures(tmp_path, capsys):
     assert main(["scenes", "--out", str(tmp_path), "paper-fig3"]) == 0
     assert (tmp_path / "paper-fig3.png").stat().st_size > 1000
     assert "paper-fig3" in capsys.readouterr().out
+
+
+BASE = {
+    "duration_s": 10.0,
+    "camera": {"position": [0.0, 0.0, 0.0], "look_at": [0.0, 1.0, 0.0]},
+    "belt": {"width": 0.6, "speed": 0.2},
+    "object": [{"shape": "box", "size": [0.1, 0.1, 0.1], "position": [0.0, 2.0, 0.0]}],
+}
+NAN = float("nan")
+
+
+def _with(change: dict, base: dict = BASE) -> dict:
+    """`base` with `change` merged in (tables merged, anything else replaced)."""
+    out = dict(base)
+    for key, value in change.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _with(value, out[key])
+        else:
+            out[key] = value
+    return out
+
+
+def _obj(**change) -> dict:
+    return {"object": [{**BASE["object"][0], **change}]}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"camera": {"fps": 0}}, "camera.fps must be in"),
+        ({"camera": {"fps": "fast"}}, "camera.fps must be a number, not 'fast'"),
+        ({"camera": {"mod_code": True}}, "camera.mod_code must be an integer"),
+        ({"camera": {"integration": 256}}, "camera.integration must be in 0..255"),
+        ({"belt": {"speed": NAN}}, "belt.speed must be a finite number"),
+        ({"belt": {"width": -0.6}}, "belt.width must be above 0"),
+        ({"belt": {"length": 1e9}}, "belt.length must be above 0 and at most 100"),
+        ({"duration_s": NAN}, "duration_s must be a finite number"),
+        ({"duration_s": "10"}, "duration_s must be a number, not '10'"),
+        ({"duration_s": 0}, "duration_s must be above 0"),
+        (_obj(rotation_deg=[0, NAN, 0]), "rotation_deg must be a finite number"),
+        (_obj(size=[0.1, -0.1, 0.1]), "size must be three positive numbers"),
+        (_obj(size=["a", 1, 1]), "size must be a number, not 'a'"),
+        (_obj(shape="sphere", radius=-1), "radius must be above 0"),
+        ({"object": [{"part": [{"shape": "cylinder", "radius": 0.1, "from": [0, 2, 0],
+                                "to": [0, 2, 0]}]}]}, "from and to are the same point"),
+        (_obj(target="false"), "target must be true or false, not 'false'"),
+        (_obj(motion="path", waypoints=[[0, 0, 2, 0, 0], [NAN, 0, 2, 0, 0]]),
+         "waypoints must be a finite number"),
+        (_obj(motion="path", waypoints=[[1, 0, 2, 0, 0], [0.5, 0, 2, 0, 0]]),
+         "times must increase"),
+        (_obj(motion="linear", velocity=[NAN, 0, 0]), "velocity must be a finite number"),
+        (_obj(swing={"axis": [0, 0, 0], "amplitude_deg": 5, "period_s": 1}),
+         "swing.axis must not be zero"),
+        (_obj(swing={"axis": [0, 0, 1], "amplitude_deg": 5, "period_s": 0}),
+         "swing.period_s must be above 0"),
+        ({"camera": {"look_at": [0.0, 0.0, 0.0]}}, "position and camera.look_at are the same"),
+        ({"camera": {"up": [0.0, 2.0, 0.0]}}, "camera.up must not be zero or along the view"),
+        ({"camera": {"up": [0.0, 0.0, 0.0]}}, "camera.up must not be zero"),
+        ({"camera": {"width": 4096, "height": 4096}}, "more than 2097120 pixels"),
+        ({"camera": {"width": 100_000}}, "camera.width must be in 1..65535"),
+        ({"camera": {"fx": NAN}}, "camera.fx must be a finite number"),
+        ({"sensor": {"supersample": 100}}, "sensor.supersample must be in 1..8"),
+        ({"sensor": {"gain": 0}}, "sensor.gain must be in"),
+        ({"objects": [{"shape": "box", "size": [1, 1, 1]}]},
+         "unknown table [[objects]]; did you mean [[object]]?"),
+        ({"cmaera": {}}, "unknown table [cmaera]; did you mean [camera]?"),
+        ({"duration": 3}, "unknown key 'duration'; did you mean duration_s?"),
+        ({"camera": {"look-at": [0, 1, 0]}}, "unknown key 'look-at'; did you mean look_at?"),
+    ],
+)  # fmt: skip
+def test_malformed_scene_values_are_one_line_scene_errors(tmp_path, change, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(scene_toml(_with(change)))
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    text = str(info.value)
+    assert message in text
+    assert text.startswith(str(path))
+    assert "\n" not in text
+
+
+def test_the_base_of_those_cases_is_a_good_scene(tmp_path):
+    path = tmp_path / "good.toml"
+    path.write_text(scene_toml(BASE))
+    assert load_scene(path).objects[0].target is False
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (bytes(range(256)) * 4, "not a text file"),
+        (b"a = " + b"[" * 5000 + b"]" * 5000, "nested too deep"),
+        (b"# " + b"x" * (2 << 20), "larger than"),
+    ],
+    ids=["binary", "deep", "huge"],
+)
+def test_a_scene_file_that_is_not_a_scene_is_a_one_line_error(tmp_path, data, message):
+    path = tmp_path / "bad.toml"
+    path.write_bytes(data)
+    with pytest.raises(SceneError, match=message) as info:
+        load_scene(path)
+    assert "\n" not in str(info.value)
+
+
+def test_scene_errors_no_longer_end_in_a_stray_hint():
+    from tofcut.tools.sources import SourceError, scene_source
+
+    with pytest.raises(SourceError) as info:
+        scene_source("no-such-scene")
+    assert str(info.value).endswith(", or test-pattern")
+
+
+def test_a_bad_scene_file_does_not_suggest_the_test_pattern(tmp_path):
+    from tofcut.tools.sources import SourceError, scene_source
+
+    path = tmp_path / "bad.toml"
+    path.write_text(scene_toml(_with({"camera": {"fps": 0}})))
+    with pytest.raises(SourceError) as info:
+        scene_source(str(path))
+    assert "test-pattern" not in str(info.value)

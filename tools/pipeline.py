@@ -116,6 +116,10 @@ class Output(Protocol):
     def close(self) -> None: ...
 
 
+EVENTS_QUEUED = 1024
+"""Device events waiting for the relay's thread; more are dropped and counted."""
+
+
 class EventRelay:
     """Device events from the camera's reader thread to the console and rerun, off that thread.
 
@@ -125,14 +129,21 @@ class EventRelay:
     """
 
     def __init__(self) -> None:
-        self._queue: queue.SimpleQueue[DeviceEvent | None] = queue.SimpleQueue()
+        self._queue: queue.Queue[DeviceEvent | None] = queue.Queue(EVENTS_QUEUED)
         self._handlers: list[Callable[[DeviceEvent], object]] = []
         self._thread: threading.Thread | None = None
         self.error: BaseException | None = None
         """What a handler raised, if one did (the relay then stops handing on events)."""
+        self.dropped = 0
+        """Events not handed on: `EVENTS_QUEUED` were waiting (a handler stuck, or failed);
+        every event is still in the camera's `stats.events` and counts."""
 
     def post(self, event: DeviceEvent) -> None:
-        self._queue.put(event)
+        """Queue one event; never waits (it runs on the camera's reader thread)."""
+        try:
+            self._queue.put_nowait(event)
+        except queue.Full:
+            self.dropped += 1
 
     def start(self, handlers: list[Callable[[DeviceEvent], object]]) -> EventRelay:
         """Hand events (those posted before too) to `handlers` from now on."""
@@ -142,18 +153,21 @@ class EventRelay:
         return self
 
     def _run(self) -> None:
+        failed = False
         while (event := self._queue.get()) is not None:
+            if failed:
+                continue  # drain, so that post() never fills the queue for nothing
             try:
                 for handle in self._handlers:
                     handle(event)
             except Exception as exc:  # raised to the pipeline by close()
                 self.error = exc
-                return
+                failed = True
 
     def close(self) -> None:
         """Hand on every event posted so far, then stop; raises what a handler raised."""
         if self._thread is not None:
-            self._queue.put(None)
+            self._queue.put(None)  # waits for room: the relay's thread drains the queue
             self._thread.join()
             self._thread = None
         if self.error is not None:

@@ -52,6 +52,17 @@ SEQUENCE = "sequence"
 """Timeline of the device's frame sequence numbers."""
 DEVICE_TIME = "device_time"
 """Timeline of the device's timestamps (time since the camera powered up)."""
+MAX_DEVICE_TIME_US = (2**63 - 1) // 1000
+"""Rerun keeps durations as signed 64-bit nanoseconds: a device timestamp (a u64 of µs on the
+wire, spec §6) above this (about 292,000 years) cannot be put on the `device_time` timeline.
+Such a frame is logged without it (on its sequence and log time) and counted."""
+
+
+def device_time_ok(frame_row: FrameRow) -> bool:
+    """Whether the row's device timestamp fits rerun's `device_time` timeline."""
+    return 0 <= frame_row.tracked.frame.device_time_us <= MAX_DEVICE_TIME_US
+
+
 LOG_TIME = "log_time"
 """Rerun's own timeline of wall-clock time: a frame's rows are at the time the frame was
 handed to the output, what `rr.log` logs (events, contexts) at the time it is logged."""
@@ -267,6 +278,8 @@ class FrameLogger:
         self._context_ids: frozenset[int] | None = None
         self._belt_logged = False
         self._dropped_logged = 0
+        self.odd_device_times = 0
+        """Frames logged without a device time: theirs is past `MAX_DEVICE_TIME_US`."""
         self._log_static()
         shape = (calibration.height, calibration.width)
         self._depth = ImageColumn(rec, DEPTH, rr.DepthImage(np.zeros(shape, np.uint16), meter=1e3))
@@ -305,10 +318,23 @@ class FrameLogger:
                     f"frame {row.tracked.sequence} is {row.tracked.frame.shape[::-1]} pixels; "
                     f"the recording's images are {shape[::-1]} (the calibration's)"
                 )
+        ok = [device_time_ok(row) for row in rows]
+        if not all(ok):  # one odd timestamp must not end the run: those frames go without it
+            self.odd_device_times += ok.count(False)
+            start = 0
+            for i in range(1, len(rows) + 1):
+                if i == len(rows) or ok[i] != ok[start]:
+                    self._write_run(rows[start:i], sink_dropped, device_time=ok[start])
+                    start = i
+            return
+        self._write_run(rows, sink_dropped, device_time=True)
+
+    def _write_run(self, rows: Sequence[FrameRow], sink_dropped: int, device_time: bool) -> None:
+        """`write_frames` for frames that all have, or all lack, a usable device time."""
         for row in rows:
-            self._log_frame_events(row.tracked)
+            self._log_frame_events(row.tracked, device_time)
         frames = [row.tracked.frame for row in rows]
-        times = time_columns(rows)
+        times = time_columns(rows, device_time)
         send = self.rec.send_columns
         # Each frame's depth and cloud one after the other: its points are read from memory once.
         depths = []
@@ -347,7 +373,7 @@ class FrameLogger:
             ],
         )
         self._send_tracks(rows, times)
-        self._send_status(rows, sink_dropped)
+        self._send_status(rows, sink_dropped, device_time)
 
     def write_event(self, text: str, level: str) -> None:
         """A device or pipeline event, at the time of the last frame written."""
@@ -372,13 +398,16 @@ class FrameLogger:
             if not keep_serving:
                 self.rec.disconnect()
 
-    def _log_frame_events(self, tracked: TrackedFrame) -> None:
+    def _log_frame_events(self, tracked: TrackedFrame, device_time: bool = True) -> None:
         """What happens at one frame rather than in every frame: the annotation context when
         the ids change, births and ends, the belt's arrow; at the frame's sequence number and
         device time (their log time is rerun's own: when they are logged)."""
         rec = self.rec
         rec.set_time(SEQUENCE, sequence=tracked.sequence)
-        rec.set_time(DEVICE_TIME, duration=np.timedelta64(tracked.frame.device_time_us, "us"))
+        if device_time:
+            rec.set_time(DEVICE_TIME, duration=np.timedelta64(tracked.frame.device_time_us, "us"))
+        else:
+            rec.disable_timeline(DEVICE_TIME)
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
         if ids != self._context_ids:  # ids never repeat; every id in the masks is a track's
             rec.log(WORLD, annotation_context(ids))
@@ -463,7 +492,9 @@ class FrameLogger:
         )
         self._belt_logged = True
 
-    def _send_status(self, rows: Sequence[FrameRow], sink_dropped: int) -> None:
+    def _send_status(
+        self, rows: Sequence[FrameRow], sink_dropped: int, device_time: bool = True
+    ) -> None:
         """The health at every STATUS_EVERY-th frame, and at the first frame that knows of
         new drops by the output itself."""
         picked = [
@@ -484,19 +515,23 @@ class FrameLogger:
             if at:
                 self.rec.send_columns(
                     f"{STATUS}/{name}",
-                    time_columns(at),
+                    time_columns(at, device_time),
                     [rr.DescribedComponentBatch(ScalarBatch(values), SCALARS).partition()],
                 )
 
 
-def time_columns(rows: Sequence[FrameRow]) -> list[rr.TimeColumn]:
-    """The frames' sequence numbers, device times and log times, as rerun's index columns."""
+def time_columns(rows: Sequence[FrameRow], device_time: bool = True) -> list[rr.TimeColumn]:
+    """The frames' sequence numbers, device times (unless not `device_time`) and log times,
+    as rerun's index columns."""
     frames = [row.tracked.frame for row in rows]
-    return [
+    columns = [
         rr.TimeColumn(SEQUENCE, sequence=[f.sequence for f in frames]),
-        rr.TimeColumn(DEVICE_TIME, duration=np.array([f.device_time_us for f in frames], "m8[us]")),
         rr.TimeColumn(LOG_TIME, timestamp=np.array([row.log_time_ns for row in rows], "M8[ns]")),
     ]
+    if device_time:
+        us = np.array([f.device_time_us for f in frames], "m8[us]")
+        columns.insert(1, rr.TimeColumn(DEVICE_TIME, duration=us))
+    return columns
 
 
 def status_value(status: PipelineStatus, name: str, sink_dropped: int) -> float | None:

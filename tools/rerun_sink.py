@@ -214,6 +214,8 @@ class RerunSink:
             text = f"rerun: {s.written} of {s.logged} frames sent ({self.target.kind})"
         if s.dropped:
             text += f", {s.dropped} dropped to keep up"
+        if odd := self._writer.odd_device_times:
+            text += f"; {odd} without a device time (their timestamps are out of range)"
         if s.waits:
             text += f"; the file writer held up the pipeline {s.waits} times ({s.waited_s:.2f} s)"
         return text

@@ -22,7 +22,7 @@ from tofcut.sim.catalog import open_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.pattern import TestPattern
 from tofcut.sim.renderer import SceneSource
-from tofcut.sim.scene_file import SceneError
+from tofcut.sim.scene_file import SceneError, UnknownScene
 from tofcut.sim.source import TapSource
 from tofcut.sim.usb_backend import EmulatedBackend
 
@@ -68,8 +68,10 @@ def scene_source(name: str | None, seed: int = 0) -> TapSource:
         return TestPattern(176, 144, seed=seed)
     try:
         return open_scene(name, seed)
+    except UnknownScene as exc:
+        raise SourceError(f"{exc}, or {TEST_PATTERN}") from None
     except SceneError as exc:
-        raise SourceError(f"{exc} (or {TEST_PATTERN})") from None
+        raise SourceError(str(exc)) from None
 
 
 @dataclass(frozen=True, eq=False)

@@ -30,6 +30,9 @@ EXTENT_PERCENTILE = 2.0
 pixels at depth edges land far along their rays and would stretch a min-max extent."""
 HULL_BIN_M = 0.002
 """The footprint's hull is taken over per-bin extremes of this width along the belt."""
+MAX_NESTING = 64
+"""The deepest a rule may nest `not`s and parentheses (each counts one level): the parser and
+the rule it builds recurse once per level, so an unbounded depth would end in RecursionError."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -174,9 +177,11 @@ class _Parser:
             self.tokens.append((m.lastgroup, m.group(m.lastgroup)))
             pos = m.end()
         self.i = 0
+        self.depth = 0
 
     def _error(self, what: str) -> NoReturn:
-        raise ConfigError(f"reject rule {self.text!r}: {what}")
+        text = self.text if len(self.text) <= 60 else self.text[:60] + "…"
+        raise ConfigError(f"reject rule {text!r}: {what}")
 
     def _peek(self) -> tuple[str, str] | None:
         return self.tokens[self.i] if self.i < len(self.tokens) else None
@@ -215,16 +220,25 @@ class _Parser:
         return parts[0] if len(parts) == 1 else (lambda m: all(p(m) for p in parts))
 
     def _not(self) -> Predicate:
+        if self._peek() in (("name", "not"), ("paren", "(")):
+            self.depth += 1
+            if self.depth > MAX_NESTING:
+                self._error(f"nests 'not' and parentheses more than {MAX_NESTING} deep")
+            try:
+                return self._nested()
+            finally:
+                self.depth -= 1
+        return self._comparison()
+
+    def _nested(self) -> Predicate:
         if self._keyword("not"):
             inner = self._not()
             return lambda m: not inner(m)
-        if self._peek() == ("paren", "("):
-            self.i += 1
-            inner = self._or()
-            if self._next() != ("paren", ")"):
-                self._error("a '(' is not closed")
-            return inner
-        return self._comparison()
+        self.i += 1  # the "("
+        inner = self._or()
+        if self._next() != ("paren", ")"):
+            self._error("a '(' is not closed")
+        return inner
 
     def _comparison(self) -> Predicate:
         values = [self._value()]

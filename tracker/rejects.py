@@ -18,7 +18,9 @@ import statistics
 import threading
 from collections import deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+
+import numpy as np
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
 from tofcut.tracker.reject_rule import RejectRule, TrackMeasures, measure_track
@@ -65,6 +67,9 @@ class RejectStats:
     """Track observations dropped because the belt's geometry was not known yet."""
     belt_changes: int = 0
     """Times the belt's geometry was replaced during the run (`set_belt`)."""
+    forgotten: int = 0
+    """Objects dropped unfired because `CANDIDATES_KEPT` newer ones were waiting (a stuck or
+    backwards encoder never brings them to the diverter)."""
 
 
 @dataclass
@@ -83,6 +88,9 @@ _MAX_VIEWS = 200
 _MAX_DONE = 4096
 EVENTS_KEPT = 1024
 """Fired rejects kept for `events` (the newest); `stats.fired` counts every one."""
+CANDIDATES_KEPT = 1024
+"""Objects waiting to reach the diverter that are kept (the newest seen); older ones are
+dropped and counted in `stats.forgotten`. A working line has a handful in flight."""
 
 
 class RejectScheduler:
@@ -111,7 +119,7 @@ class RejectScheduler:
         """Tracks that reached the diverter (an ordered set, the newest `_MAX_DONE`)."""
         self._events: deque[RejectEvent] = deque(maxlen=EVENTS_KEPT)
         self._stats = dict.fromkeys(
-            ("views", "unplaced", "fired", "passed", "no_belt", "belt_changes"), 0
+            ("views", "unplaced", "fired", "passed", "no_belt", "belt_changes", "forgotten"), 0
         )
 
     def set_belt(self, belt: BeltGeometry) -> None:
@@ -158,14 +166,25 @@ class RejectScheduler:
             for m in measured:
                 if m.track_id in self._done:
                     continue
-                c = self._candidates.setdefault(m.track_id, _Candidate())
+                c = self._candidate(m.track_id)
                 cut = frame_shape is not None and _touches_border(m.track.bbox, frame_shape)
                 (c.cut_offsets if cut else c.offsets).append(m.along - reading.distance_m)
                 c.views += 1
                 c.votes += bool(self.rule(m))
                 if c.best is None or m.pixels >= c.best.pixels:
-                    c.best = m
+                    c.best = _without_points(m)
                 self._stats["views"] += 1
+
+    def _candidate(self, track_id: int) -> _Candidate:
+        """Under the lock: the track's candidate; a new one pushes out the oldest when
+        `CANDIDATES_KEPT` are waiting."""
+        c = self._candidates.get(track_id)
+        if c is None:
+            while len(self._candidates) >= CANDIDATES_KEPT:
+                del self._candidates[next(iter(self._candidates))]
+                self._stats["forgotten"] += 1
+            c = self._candidates[track_id] = _Candidate()
+        return c
 
     def on_reading(self, reading: BeltReading) -> list[RejectEvent]:
         """Fire every matching object the belt has brought to the diverter; the events."""
@@ -192,6 +211,13 @@ class RejectScheduler:
             log.info("%s", event.describe())
             self._fire(event)
         return fired
+
+
+def _without_points(m: TrackMeasures) -> TrackMeasures:
+    """The measures with the track's point cloud left out (the scheduler keeps the best view
+    of every object in flight; its points would be most of the memory and are not needed)."""
+    empty = np.zeros((0, 3), np.float32)
+    return replace(m, track=replace(m.track, points=empty))
 
 
 def _touches_border(bbox: tuple[int, int, int, int], shape: tuple[int, int]) -> bool:
