@@ -54,7 +54,9 @@ def _range_scale(raw: RawFrame) -> float:
 
 def demodulate(raw: RawFrame, optics: Optics, amplitude_threshold: float = 0.0) -> Frame:
     """Turn one raw frame into range, amplitude, intensity, a valid mask and points."""
-    a0, a1, a2, a3 = raw.taps.astype(np.int32)
+    # a count above the sensor's 14 bits is not a reading (the pixel is invalid below); held
+    # at full scale, the squares stay exact in int32 instead of overflowing
+    a0, a1, a2, a3 = np.minimum(raw.taps, MAX_COUNT).astype(np.int32)
     s = a3 - a1  # s and −c, exact in int32
     nc = a2 - a0
     phase: F64 = np.arctan2(s, nc, dtype=np.float64)

@@ -59,3 +59,19 @@ def test_fast_path_equals_the_reference_on_random_taps(mod_code, threshold):
     wide = Optics(optics.rays, rng.uniform(-3.2, 3.2, (h, w)), 0.05)
     for opt in (optics, wide):
         _assert_same(_raw(taps, mod_code), opt, threshold)
+
+
+def test_counts_above_fourteen_bits_are_invalid_pixels_not_nan():
+    """A tap above the sensor's 14 bits (the wire's u16 allows it) is held at full scale: the
+    pixel is invalid, its amplitude finite, and nothing overflows (no RuntimeWarning)."""
+    calib = open_scene("conveyor", 0).calibration
+    taps = np.full((4, calib.height, calib.width), 5000, np.uint16)
+    taps[1, 0, :3] = 65535
+    taps[3, 0, :3] = 0
+    taps[0, 1, 0] = MAX_COUNT + 1
+    with np.errstate(all="raise"):
+        frame = demodulate(_raw(taps, sorted(MOD_FREQ_MHZ)[0]), Optics.from_calibration(calib))
+    assert np.isfinite(frame.amplitude).all()
+    assert not frame.valid[0, :3].any()
+    assert not frame.valid[1, 0]
+    assert frame.valid[2:].all()
