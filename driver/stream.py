@@ -128,6 +128,10 @@ class FrameParser:
         self._outage: str | None = None
         self._transfer_bytes = 0
         self._transfer_settled = False
+        self._damage_counted = False
+        """A damaged frame was counted since the last frame or transfer: what follows in the
+        same bytes until a frame is whole is that frame's damage (a run of false frame magic
+        in garbage is one damaged frame, not one per match)."""
 
     @property
     def pending(self) -> int:
@@ -144,6 +148,7 @@ class FrameParser:
         self._skip(len(self._buf))
         self._transfer_bytes = 0
         self._transfer_settled = False
+        self._damage_counted = False
 
     def end_transfer(self) -> None:
         """The bulk transfer ended (a short packet); a frame still incomplete is damaged.
@@ -201,13 +206,16 @@ class FrameParser:
             del self._buf[:n]
 
     def _damaged(self, skip: int) -> None:
-        self.stats.damaged += 1
+        if not self._damage_counted:
+            self.stats.damaged += 1
+            self._damage_counted = True
         self._transfer_settled = True
         self._skip(skip)
 
     def _accept(self, hdr: FrameHeader, wire: bytes, host_time_ns: int) -> RawFrame:
         stats = self.stats
         self._transfer_settled = True
+        self._damage_counted = False
         run = hdr.sequence + stats.sequence_offset
         if self._last is None:
             self._outage = None  # nothing came before it, so there is nothing to cost

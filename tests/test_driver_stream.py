@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from tofcut.driver.protocol import (
+    FRAME_MAGIC,
     HEADER_SIZE,
     DeviceInfo,
     FrameHeader,
@@ -81,6 +82,17 @@ def test_a_damaged_frame_is_dropped_and_the_stream_goes_on(damage):
     assert parser.stats.lost == 1
     assert list(parser.stats.gaps) == [(3, 3)]
     assert parser.stats.frames == 5
+
+
+def test_garbage_full_of_frame_magic_is_one_damaged_frame_not_one_per_match():
+    """Between two good frames, a record of garbage made of nothing but the frame's magic
+    (thousands of false starts, each failing its header check) costs one damaged frame."""
+    parser = FrameParser(INFO)
+    garbage = FRAME_MAGIC * 20000
+    got = parser.feed(wire_frame(0) + garbage + wire_frame(1), 0)
+    assert [f.sequence for f in got] == [0, 1]
+    assert parser.stats.damaged == 1
+    assert parser.stats.lost == 0
 
 
 def test_sequence_gaps_are_counted_with_their_ranges():
