@@ -21,6 +21,7 @@ holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from collections.abc import Callable
@@ -41,6 +42,7 @@ from tofcut.tracker.background import (
     standing_regions,
 )
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import range_noise
@@ -322,6 +324,7 @@ class Tracker:
     def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
         """Track one frame; `prior` is the belt's velocity now, when known."""
         p = self.params
+        frame = _checked(frame, self.background.shape if self.background is not None else None)
         h, w = frame.shape
         if self.background is None:
             self.background = self.background_model((h, w), p.background)
@@ -933,10 +936,29 @@ def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F
         return frame.xyz, frame.range, noise
     rng = kernels.median3_within(frame.range, body, loud)
     with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(loud, rng / frame.range, 1.0)
+        scale = np.where(loud & (frame.range > 0), rng / frame.range, 1.0)
     xyz = frame.xyz * scale[..., None]
     quiet = np.where(loud, noise * MEDIAN_NOISE_SHARE, noise)
     return xyz, rng, quiet
+
+
+def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
+    """The frame as the compiled kernels may take it: of the run's size (`SegmentError` if
+    not), its arrays of one shape, and every range and point finite (a NaN would reach an
+    index): a pixel that is not is made invalid, at range 0."""
+    h, w = frame.shape
+    if shape is not None and (h, w) != shape:
+        raise SegmentError(f"a {w}x{h} frame in a run of {shape[1]}x{shape[0]} frames")
+    if frame.range.shape != (h, w) or frame.valid.shape != (h, w) or frame.xyz.shape != (h, w, 3):
+        raise SegmentError("the frame's range, valid mask and points differ in shape")
+    finite = np.isfinite(frame.range) & np.isfinite(frame.xyz).all(axis=-1)
+    if finite.all():
+        return frame
+    # a point the cut may still hand to a track (an invalid pixel inside an object) must
+    # not carry a NaN into its cloud: such pixels read 0
+    rng = np.where(finite, frame.range, 0.0)
+    xyz = np.where(finite[..., None], frame.xyz, 0.0)
+    return dataclasses.replace(frame, range=rng, xyz=xyz, valid=frame.valid & finite)
 
 
 def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
