@@ -147,8 +147,8 @@ def recording(tmp_path_factory, run) -> tuple[Path, RerunSink]:
 
 
 def reader(path: Path) -> RrdReader:
-    with warnings.catch_warnings():  # our files have no footer (see `RerunTarget.attach`)
-        warnings.filterwarnings("ignore", "RRD file has no footer")
+    with warnings.catch_warnings():  # a file without a footer is read as a "legacy format"
+        warnings.filterwarnings("error", "RRD file has no footer")
         return RrdReader(path)
 
 
@@ -163,10 +163,10 @@ def rerun_cli(*args: str) -> subprocess.CompletedProcess[str]:
     )
 
 
-def rrd_verify(path: Path, footer: bool = False) -> subprocess.CompletedProcess[str]:
-    """Rerun's own check that a file loads and is interpreted correctly (our files have no
-    footer, see `RerunTarget.attach`; `footer=True` checks for one too)."""
-    return rerun_cli("rrd", "verify", f"--check-footers={str(footer).lower()}", str(path))
+def rrd_verify(*paths: Path) -> subprocess.CompletedProcess[str]:
+    """Rerun's own check that files load and are interpreted correctly, with its defaults
+    (which include a well-formed footer)."""
+    return rerun_cli("rrd", "verify", *map(str, paths))
 
 
 def all_rows(
@@ -221,15 +221,135 @@ def test_rerun_verifies_the_recording(recording):
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def test_the_file_has_no_footer_and_rerun_optimize_adds_one(recording, tmp_path):
+def test_the_file_has_rerun_s_footer_and_reads_as_current_not_legacy(recording):
     path, _ = recording
-    checked = rrd_verify(path, footer=True)
-    assert "Missing RRD footer" in checked.stdout + checked.stderr
-    optimized = tmp_path / "optimized.rrd"
-    assert rerun_cli("rrd", "optimize", str(path), "-o", str(optimized)).returncode == 0
-    result = rrd_verify(optimized, footer=True)
-    assert result.returncode == 0, result.stdout + result.stderr
-    assert frame_sequences(optimized) == frame_sequences(path)
+    assert len(RrdReader(path).recordings()) == 1  # no "legacy format" warning (see `reader`)
+    assert "footer" not in rrd_verify(path).stdout + rrd_verify(path).stderr
+
+
+# --- segments: a long run goes on in new files, each closed with its footer -------------------
+
+
+def run_cli(*argv: str, cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """`tofcut ARGS...` in a process of its own, as a user runs it."""
+    code = "import sys; from tofcut.tools.cli import main; sys.exit(main(sys.argv[1:]))"
+    return subprocess.run(
+        [sys.executable, "-c", code, *argv],
+        capture_output=True, text=True, timeout=600, cwd=cwd, check=False,
+    )  # fmt: skip
+
+
+def segment_frames(paths: list[Path]) -> list[int]:
+    return [s for p in paths for s in frame_sequences(p)]
+
+
+def test_a_run_on_the_command_line_writes_a_file_rerun_verifies_and_reads(tmp_path):
+    result = run_cli("track", "emulator:conveyor", "--fast", "--frames", "12", cwd=tmp_path)
+    assert result.returncode == 0, result.stderr
+    (path,) = tmp_path.glob("*.rrd")  # the default: one dated file in the working directory
+    assert path.name.startswith("tofcut-")
+    assert f"12 of 12 frames written to {path}" in result.stdout
+    checked = rrd_verify(path)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    sequences = frame_sequences(path)
+    assert sequences == list(range(sequences[0], sequences[0] + 12))
+    assert len(reader(path).blueprints()) == 1
+
+
+def test_a_run_past_the_segment_size_writes_several_files_each_verified(tmp_path):
+    out = tmp_path / "run.rrd"
+    result = run_cli(
+        "track", "emulator:conveyor", "--fast", "--frames", "60", "--save", str(out),
+        "--segment-mb", "2",
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    paths = sorted(tmp_path.glob("*.rrd"))
+    assert len(paths) >= 3
+    assert paths == [tmp_path / f"run-{n:04d}.rrd" for n in range(1, len(paths) + 1)]
+    assert not out.exists()  # the first file was renamed RUN-0001.rrd
+    assert f"60 of 60 frames written to {len(paths)} files" in result.stdout
+    assert "rerun " + str(tmp_path / "run-*.rrd") in result.stdout
+    checked = rrd_verify(*paths)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    # every frame once, in order, across the files; each file stands alone: one recording
+    # (the same for all), its blueprint, and the static data an image needs to be shown
+    frames = segment_frames(paths)
+    assert frames == sorted(set(frames))
+    assert len(frames) == 60
+    ids = set()
+    for path in paths:
+        assert frame_sequences(path)
+        (recording,) = reader(path).recordings()
+        ids.add(recording.recording_id)
+        assert len(reader(path).blueprints()) == 1
+        assert static_value(path, "world/camera/depth", "DepthImage:meter") == [1000.0]
+        static_value(path, "world/camera", "Pinhole:image_from_camera")
+        static_value(path, "world/belt", "Arrows3D:vectors")
+        contexts = rows_on(path, "world", "AnnotationContext:context")
+        assert min(contexts) == frame_sequences(path)[0]  # the track names from its first frame
+    assert len(ids) == 1
+
+
+def test_a_segment_is_also_closed_after_its_time(tmp_path, run, monkeypatch):
+    calibration, belt, frames = run
+    monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 4)
+    target = RerunTarget.save(tmp_path / "t.rrd", segment_bytes=0, segment_s=1e-6)
+    sink = RerunSink(calibration, target, belt, name="timed")
+    for f in frames[:12]:
+        sink.log(*f)
+    sink.close()
+    assert sink.files == [tmp_path / f"t-{n:04d}.rrd" for n in range(1, 5)]
+    assert rrd_verify(*sink.files).returncode == 0
+    assert [len(frame_sequences(p)) for p in sink.files] == [4, 4, 4, 0]
+    assert segment_frames(sink.files) == [t.sequence for t, _ in frames[:12]]
+    assert "written to 4 files" in sink.summary()
+    # without a bound, one file however long
+    single = RerunTarget.save(tmp_path / "one.rrd", segment_bytes=0, segment_s=0)
+    with RerunSink(calibration, single, belt) as sink:
+        for f in frames:
+            sink.log(*f)
+    assert sink.files == [tmp_path / "one.rrd"]
+
+
+KILL_SCRIPT = """
+import signal, sys, time
+sys.path.insert(0, sys.argv[2])
+from test_rerun_out import emulated_run
+from tofcut.tools.rerun_sink import RerunSink
+from tofcut.tools.rerun_target import RerunTarget
+calibration, belt, run = emulated_run(frames=4)
+sink = RerunSink(calibration, RerunTarget.save(sys.argv[1], segment_bytes=1_000_000), belt)
+n = 0
+while True:
+    sink.log(*run[n % len(run)])
+    n += 1
+    if len(sink.files) == 3:
+        print("three files", flush=True)
+"""
+
+
+def test_sigkill_costs_only_the_last_segment_s_footer_and_rerun_recovers_it(tmp_path):
+    path = tmp_path / "killed.rrd"
+    proc = subprocess.Popen(
+        [sys.executable, "-c", KILL_SCRIPT, str(path), str(HERE)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == "three files", proc.communicate()
+    proc.kill()  # SIGKILL while it writes: nothing gets to close the file
+    proc.communicate(timeout=60)
+    *closed, last = sorted(tmp_path.glob("killed-*.rrd"))
+    assert len(closed) >= 2
+    checked = rrd_verify(*closed)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
+    assert all(frame_sequences(p) for p in closed)
+    # The last file has no footer and may end inside a message; rerun's optimize keeps every
+    # whole message and writes a file with a footer.
+    fixed = tmp_path / "fixed.rrd"
+    repaired = rerun_cli("rrd", "optimize", str(last), "-o", str(fixed))
+    assert repaired.returncode == 0, repaired.stderr
+    checked = rrd_verify(fixed)
+    assert checked.returncode == 0, checked.stdout + checked.stderr
 
 
 def test_the_recording_holds_every_entity_and_a_blueprint(recording):
@@ -865,3 +985,24 @@ def test_the_help_says_what_serve_exposes_and_for_how_long():
     assert "without authentication" in text
     assert "until Ctrl-C after it" in text
     assert "127.0.0.1" in text
+
+
+def test_the_segment_bounds_are_options_with_sensible_defaults():
+    default = target_from_args(parse("--save", "a.rrd"), NOW)
+    assert default.segment_bytes == 256_000_000
+    assert default.segment_s == 600.0
+    target = target_from_args(
+        parse("--save", "a.rrd", "--segment-mb", "2", "--segment-minutes", "0.5"), NOW
+    )
+    assert target == RerunTarget.save("a.rrd", segment_bytes=2_000_000, segment_s=30.0)
+    assert target.segment_path(3) == Path("a-0003.rrd")
+    assert target_from_args(parse("--save", "a.rrd", "--segment-mb", "0"), NOW).segment_bytes == 0
+    for bad in ("-1", "nan", "inf", "lots"):
+        with pytest.raises(SystemExit):
+            parse("--segment-mb", bad)
+    parser = argparse.ArgumentParser()
+    add_rerun_options(parser)
+    text = " ".join(parser.format_help().split())
+    assert "default 256 MB" in text
+    assert "default 10" in text
+    assert "RUN-0001.rrd" in text

@@ -247,7 +247,13 @@ class ImageColumn:
                 self.buffer = descriptor
             else:
                 fields.append(batch)
-        rec.log(entity, fields, static=True)
+        self.entity = entity
+        self.fields = fields
+        self.log_static(rec)
+
+    def log_static(self, rec: rr.RecordingStream) -> None:
+        """The fields other than the pixels, static (again at the start of each file)."""
+        rec.log(self.entity, self.fields, static=True)
 
     def column(self, pixels: npt.NDArray[Any]) -> rr.ComponentColumn:
         """(frames, H, W) pixels as one buffer per row."""
@@ -277,6 +283,7 @@ class FrameLogger:
         self._trails: dict[int, deque[npt.NDArray[np.float32]]] = {}
         self._context_ids: frozenset[int] | None = None
         self._belt_logged = False
+        self._belt_arrow: rr.Arrows3D | None = None
         self._dropped_logged = 0
         self.odd_device_times = 0
         """Frames logged without a device time: theirs is past `MAX_DEVICE_TIME_US`."""
@@ -286,6 +293,17 @@ class FrameLogger:
         self._amplitude = ImageColumn(rec, AMPLITUDE, rr.Image(np.zeros(shape, np.uint8)))
         self._intensity = ImageColumn(rec, INTENSITY, rr.Image(np.zeros(shape, np.uint8)))
         self._masks = ImageColumn(rec, MASKS, rr.SegmentationImage(np.zeros(shape, np.uint16)))
+
+    def restart(self) -> None:
+        """Log again what a new file of the recording needs before its first frame (the
+        sink's next segment starts empty but for the store info and blueprint): the static
+        data, the belt's arrow; the annotation context goes with the next frame."""
+        self._log_static()
+        for column in (self._depth, self._amplitude, self._intensity, self._masks):
+            column.log_static(self.rec)
+        if self._belt_arrow is not None:
+            self.rec.log(BELT, self._belt_arrow, static=True)
+        self._context_ids = None
 
     def _log_static(self) -> None:
         c = self.calibration
@@ -384,7 +402,7 @@ class FrameLogger:
         self.rec.flush()
 
     def close(self, timeout_s: float | None, keep_serving: bool = False) -> None:
-        """Flush, then close the sinks: a file is complete.
+        """Flush, then close the sinks: a file is complete (rerun writes its footer).
 
         `keep_serving` leaves a gRPC server up for viewers that connect after the run (it
         stops when the recording stream is collected, at the latest at exit).
@@ -479,17 +497,14 @@ class FrameLogger:
         f = tracked.frame
         origin = np.median(f.xyz[f.valid], axis=0) if f.valid.any() else np.zeros(3)
         direction = self.belt_direction / np.linalg.norm(self.belt_direction)
-        self.rec.log(
-            BELT,
-            rr.Arrows3D(
-                origins=[origin],
-                vectors=[direction * BELT_ARROW_M],
-                labels=["belt"],
-                colors=[BELT_RGB],
-                radii=[0.006],
-            ),
-            static=True,
+        self._belt_arrow = rr.Arrows3D(
+            origins=[origin],
+            vectors=[direction * BELT_ARROW_M],
+            labels=["belt"],
+            colors=[BELT_RGB],
+            radii=[0.006],
         )
+        self.rec.log(BELT, self._belt_arrow, static=True)
         self._belt_logged = True
 
     def _send_status(

@@ -5,6 +5,8 @@ then hands it to a `RerunSink` writing a temporary .rrd file round and round, ea
 renumbered (sequence numbers and device time go on) and with new track ids (on a conveyor
 ids grow without end), while `soak.MemorySampler` samples RSS. It prints RSS as the frames
 go and the growth over the second half (the least-squares trend, as `tofcut soak` has it).
+The file is written in segments as `tofcut` writes it (`--segment-mb`, default 256; 0 writes one
+file, whose footer's manifest rerun keeps in memory until the end).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from tofcut.sim.catalog import open_scene
 from tofcut.tools.bench_frames import raw_run
 from tofcut.tools.bench_tracker import WARM_FRAMES, BeltTracker
 from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import RerunTarget
+from tofcut.tools.rerun_target import MB, SEGMENT_MB, RerunTarget
 from tofcut.tools.soak import MemoryGrowth, MemorySampler, rss_bytes
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.tracks import Track, TrackedFrame
@@ -93,16 +95,22 @@ def measure(
     frames: int,
     belt_direction: npt.ArrayLike | None = None,
     report_every: int = 0,
+    segment_mb: float = SEGMENT_MB,
 ) -> MemoryGrowth:
-    """RSS while `frames` frames of `run` (see `endless`) are written to a temporary file."""
+    """RSS while `frames` frames of `run` (see `endless`) are written to a temporary file,
+    in segments of `segment_mb` MB (0: one file)."""
     with tempfile.TemporaryDirectory(prefix="tofcut-rerun-memory-") as tmp:
-        sink = RerunSink(calibration, RerunTarget.save(Path(tmp) / "run.rrd"), belt_direction)
+        target = RerunTarget.save(Path(tmp) / "run.rrd", segment_bytes=round(segment_mb * MB))
+        sink = RerunSink(calibration, target, belt_direction)
         sampler = MemorySampler(interval_s=0.1).start()
         try:
             for i, (tracked, status) in enumerate(endless(run, frames), 1):
                 sink.log(tracked, status)
                 if report_every and i % report_every == 0:
-                    print(f"frame {i}: RSS {rss_bytes() / MIB:.1f} MiB", flush=True)
+                    print(
+                        f"frame {i}: RSS {rss_bytes() / MIB:.1f} MiB, file {len(sink.files)}",
+                        flush=True,
+                    )
         finally:
             sink.close()
         return sampler.stop()
@@ -112,10 +120,18 @@ def main(argv: Sequence[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=10000, help="frames to write (default 10000)")
     p.add_argument("--base", type=int, default=60, help="emulated frames tracked (default 60)")
+    p.add_argument(
+        "--segment-mb",
+        type=float,
+        default=SEGMENT_MB,
+        help=f"a new file at this size (default {SEGMENT_MB:g}; 0: one file)",
+    )
     args = p.parse_args(argv)
     calibration, direction, run = tracked_conveyor(args.base)
     start = time.monotonic()
-    grown = measure(run, calibration, args.frames, direction, report_every=args.frames // 10)
+    grown = measure(
+        run, calibration, args.frames, direction, args.frames // 10, segment_mb=args.segment_mb
+    )
     per_frame = grown.second_half_growth_b / (args.frames / 2)
     print(
         f"{args.frames} frames in {time.monotonic() - start:.0f} s; RSS {grown.start_b / MIB:.1f} "

@@ -12,8 +12,15 @@ queued frame is dropped and counted, so the camera and tracker never wait. A fil
 longer queue and loses nothing: if the worker ever falls that far behind, `log()` waits for
 room (counted in `stats`); the worker in turn waits for rerun to write every `SYNC_FRAMES`
 frames, so nothing piles up in rerun's own unbounded queues to the file. Events are never
-dropped. `close()` drains the queue and closes the recording, so a file is complete; it also
-runs at interpreter exit (Ctrl-C included).
+dropped. `close()` drains the queue and closes the recording, so a file is complete (with
+rerun's footer); it also runs at interpreter exit (Ctrl-C included).
+
+A file is written in segments (`rerun_target` has the bounds): after a sync, a file past its
+size or age is closed, footer and all, and the worker goes on in the next one. Each closed
+file passes `rerun rrd verify`; the memory rerun holds for a footer is one segment's. A
+process killed outright (SIGKILL, power loss) leaves its last file without a footer, perhaps
+cut inside a message, which rerun's readers refuse; `rerun rrd optimize CUT.rrd -o OK.rrd`
+recovers every whole message in it, and every earlier segment is intact.
 """
 
 from __future__ import annotations
@@ -36,7 +43,7 @@ import rerun as rr
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.errors import TofcutError
 from tofcut.tools.rerun_log import APP_ID, FrameLogger, FrameRow, default_blueprint
-from tofcut.tools.rerun_target import RerunTarget, target_from_args
+from tofcut.tools.rerun_target import BlueprintSource, RerunTarget, target_from_args
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -119,12 +126,16 @@ class RerunSink:
         self.delay_s = FILE_DELAY_S if self.lossless else LIVE_DELAY_S
         rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
         try:
-            target.attach(rec, default_blueprint())
+            self._blueprint = BlueprintSource(rec, default_blueprint())
+            target.attach(rec, self._blueprint)
         except Exception as exc:
             raise RerunOutputError(f"cannot start rerun output ({target.kind}): {exc}") from exc
+        self._name = name
         if name:
             rec.send_recording_name(name)
         self._writer = FrameLogger(rec, calibration, belt_direction)
+        self._files: list[Path] = [target.path] if target.path is not None else []
+        self._segment_started = time.monotonic()
         self._cond = threading.Condition()
         self._items: deque[_Frame | _Event] = deque()
         self._queued_frames = 0
@@ -205,10 +216,25 @@ class RerunSink:
                 self._writer_cpu_s,
             )
 
+    @property
+    def files(self) -> list[Path]:
+        """The files written so far, in order: the target's path alone, or its segments."""
+        with self._cond:
+            return list(self._files)
+
     def summary(self) -> str:
         """One line for the end of a run: what was written where, what was dropped."""
         s = self.stats
-        if self.target.kind == "save":
+        files = self.files
+        if len(files) > 1:
+            assert self.target.path is not None
+            path = self.target.path
+            pattern = path.with_name(f"{path.stem}-*{path.suffix}")
+            text = (
+                f"rerun: {s.written} of {s.logged} frames written to {len(files)} files, "
+                f"{files[0]} to {files[-1].name} (view them together with: rerun {pattern})"
+            )
+        elif self.target.kind == "save":
             text = f"rerun: {s.written} of {s.logged} frames written to {self.target.path}"
         else:
             text = f"rerun: {s.written} of {s.logged} frames sent ({self.target.kind})"
@@ -275,6 +301,38 @@ class RerunSink:
             self._written += len(batch)
         if self.lossless and self._written // SYNC_FRAMES > before // SYNC_FRAMES:
             self._writer.sync()
+            self._next_segment_if_due()
+        elif not self.lossless and self.target.kind == "save":
+            self._next_segment_if_due()
+
+    def _next_segment_if_due(self) -> None:
+        """A file past its segment's size or age is closed and the next one started."""
+        t = self.target
+        if t.kind != "save":
+            return
+        current = self._files[-1]
+        aged = t.segment_s > 0 and time.monotonic() - self._segment_started >= t.segment_s
+        try:
+            big = t.segment_bytes > 0 and current.stat().st_size >= t.segment_bytes
+        except OSError:  # gone: rerun will fail on the next write, and say so
+            big = False
+        if not (aged or big):
+            return
+        number = len(self._files) + 1
+        following = t.segment_path(number)
+        # Closes the current file (rerun flushes it and writes its footer), then opens the next.
+        t.start_segment(self._writer.rec, following, self._blueprint)
+        if number == 2:  # the first file becomes RUN-0001.rrd now that there is a second
+            first = t.segment_path(1)
+            current.replace(first)
+            current = first
+        if self._name:
+            self._writer.rec.send_recording_name(self._name)
+        self._writer.restart()
+        with self._cond:
+            self._files[-1] = current
+            self._files.append(following)
+        self._segment_started = time.monotonic()
 
     def _next_batch(self) -> list[_Frame] | _Event | None:
         """Under the lock: the event at the head of the queue, or the frames before the next
@@ -423,5 +481,5 @@ def measure_logging_cost(
             in_log += time.perf_counter() - t0
         sink.close()
         cpu = time.process_time() - cpu0
-        size = path.stat().st_size
+        size = sum(f.stat().st_size for f in sink.files)
     return LoggingCost(len(run), cpu, sink.stats.writer_cpu_s, in_log, tracking_s, size)

@@ -7,6 +7,15 @@ command works on a machine with no screen. `--headless` alone records nothing (a
 own scripts, where it means no viewer and no sink); `--headless --save FILE` writes FILE.
 `--url` alone implies `--connect`.
 
+A saved recording is written in segments: when the file reaches `--segment-mb` (default 256 MB,
+about half a minute of the conveyor at 50 fps) or `--segment-minutes` (default 10), it is closed
+with rerun's footer and the recording goes on in a new file of the same recording. A run that
+stays within both bounds writes the one file it was given (RUN.rrd); a longer one writes
+RUN-0001.rrd, RUN-0002.rrd, ... instead (the first file is renamed when the second starts).
+`rerun RUN-*.rrd` shows them as one recording. Each closed file passes `rerun rrd verify`, and
+the memory rerun keeps for a footer (metadata on every chunk in the file) is bounded by the
+segment's size, however long the run.
+
 `--serve` serves the whole recording (depth, images, point clouds, tracks; the newest 1 GiB)
 over gRPC, without authentication, from the start of the run until Ctrl-C after it. It listens
 on the loopback address only (rerun's default is every interface); `--bind ADDRESS` opens it to
@@ -27,6 +36,7 @@ from typing import Literal, cast
 
 import rerun as rr
 import rerun.blueprint as rrb
+import rerun_bindings as bindings
 
 TargetKind = Literal["save", "spawn", "connect", "serve", "stdout", "none"]
 LOOPBACK = "127.0.0.1"
@@ -34,6 +44,41 @@ LOOPBACK = "127.0.0.1"
 GRPC_PORT = 9876
 """Rerun's gRPC port (`rerun+http://HOST:9876/proxy`)."""
 WEB_VIEWER_PORT = 9090
+MB = 1_000_000
+SEGMENT_MB = 256.0
+"""Default size at which a saved recording goes on in a new file (0: no bound)."""
+SEGMENT_MINUTES = 10.0
+"""Default duration after which a saved recording goes on in a new file (0: no bound)."""
+
+
+class BlueprintSource:
+    """A default blueprint for each file of a recording, from one blueprint stream.
+
+    Rerun's `save(default_blueprint=...)` makes a new blueprint stream for each call, which
+    rerun-sdk 0.41 never frees (about 1 MB each for tofcut's layout): a recording in many
+    segments would grow by that much a file. This logs the blueprint again into a fresh
+    in-memory sink of the same stream for each file instead.
+    """
+
+    def __init__(self, rec: rr.RecordingStream, blueprint: rrb.BlueprintLike) -> None:
+        self.blueprint = blueprint.to_blueprint()
+        app_id = rr.get_application_id(recording=rec)
+        if app_id is None:
+            raise ValueError("a recording without an application id")
+        native = bindings.new_blueprint(
+            application_id=app_id,
+            make_default=False,
+            make_thread_default=False,
+            default_enabled=True,
+        )
+        self._stream = rr.RecordingStream._from_native(native)
+
+    def storage(self) -> bindings.PyMemorySinkStorage:
+        """The blueprint's messages, for one file's sink (which takes them)."""
+        memory = self._stream.memory_recording()
+        self._stream.set_time("blueprint", sequence=0)
+        self.blueprint._log_to_stream(self._stream)
+        return memory.storage
 
 
 @dataclass(frozen=True)
@@ -49,14 +94,30 @@ class RerunTarget:
     """The address `serve` listens on."""
     port: int = GRPC_PORT
     """The port `serve` listens on (0: any free one)."""
+    segment_bytes: int = round(SEGMENT_MB * MB)
+    """For `save`: the size at which the recording goes on in a new file (0: never)."""
+    segment_s: float = SEGMENT_MINUTES * 60.0
+    """For `save`: the time after which the recording goes on in a new file (0: never)."""
 
     def __post_init__(self) -> None:
         if (self.kind == "save") != (self.path is not None):
             raise ValueError("a rerun target saves exactly when it has a path")
+        if self.segment_bytes < 0 or self.segment_s < 0:
+            raise ValueError("a segment bound cannot be negative")
 
     @classmethod
-    def save(cls, path: str | Path) -> RerunTarget:
-        return cls("save", path=Path(path))
+    def save(
+        cls,
+        path: str | Path,
+        segment_bytes: int = round(SEGMENT_MB * MB),
+        segment_s: float = SEGMENT_MINUTES * 60.0,
+    ) -> RerunTarget:
+        return cls("save", path=Path(path), segment_bytes=segment_bytes, segment_s=segment_s)
+
+    def segment_path(self, number: int) -> Path:
+        """Segment `number` (from 1) of a saved recording: RUN.rrd's 3rd is RUN-0003.rrd."""
+        assert self.path is not None
+        return self.path.with_name(f"{self.path.stem}-{number:04d}{self.path.suffix}")
 
     @property
     def lossless(self) -> bool:
@@ -95,20 +156,26 @@ class RerunTarget:
         host = f"[{self.bind}]" if ":" in self.bind else self.bind
         return f"rerun+http://{host}:{self.port}/proxy"
 
-    def attach(self, rec: rr.RecordingStream, blueprint: rrb.Blueprint) -> None:
+    def attach(self, rec: rr.RecordingStream, blueprint: rrb.Blueprint | BlueprintSource) -> None:
         """Point `rec` at this target, with `blueprint` as the default layout (as rerun does).
 
-        Files and stdout get no footer: rerun keeps the footer's manifest (metadata on every
-        chunk written) in memory until the end, 12 KiB a frame in `tools.rerun_memory`'s run,
-        so a run of weeks would grow without bound. The stream is complete without it;
-        `rerun rrd optimize RUN.rrd -o OUT.rrd` writes a copy with one.
+        Files and stdout get rerun's footer, written when the file sink is closed (when
+        `start_segment` replaces it, or at `rec.disconnect()`). Rerun keeps the footer's
+        manifest (metadata on every chunk written) in memory until then: a file is bounded by
+        its segment (`RerunSink` starts the next one); a stream on stdout is not (it is meant
+        for a viewer, which keeps far more).
         """
         if self.kind == "none":
             return  # rerun's `--headless`: no sink (a sink that records nothing is `NullSink`)
         if self.kind == "save":
             assert self.path is not None
-            rec.save(self.path, default_blueprint=blueprint, write_footer=False)
-        elif self.kind == "spawn":
+            if not isinstance(blueprint, BlueprintSource):
+                blueprint = BlueprintSource(rec, blueprint)
+            self.start_segment(rec, self.path, blueprint)
+            return
+        if isinstance(blueprint, BlueprintSource):
+            blueprint = blueprint.blueprint
+        if self.kind == "spawn":
             rec.spawn(default_blueprint=blueprint)
         elif self.kind == "connect":
             rec.connect_grpc(self.url, default_blueprint=blueprint)
@@ -127,14 +194,31 @@ class RerunTarget:
                     web_port=WEB_VIEWER_PORT, open_browser=True, connect_to=sink.uri
                 )
         else:
-            rec.stdout(default_blueprint=blueprint, write_footer=False)
+            rec.stdout(default_blueprint=blueprint, write_footer=True)
+
+    def start_segment(
+        self, rec: rr.RecordingStream, path: Path, blueprint: BlueprintSource
+    ) -> None:
+        """Send what `rec` logs from now on to the file `path`, with `blueprint` as its default
+        layout. The file sink it replaces, if any, is flushed and closed first, footer and all
+        (rerun swaps sinks synchronously); the new file starts with the recording's store info
+        and blueprint, nothing else: what was logged as static must be logged again.
+        (`rr.save` less its new blueprint stream per call, see `BlueprintSource`.)"""
+        bindings.save(
+            path=str(path),
+            default_blueprint=blueprint.storage(),
+            recording=rec.to_native(),
+            write_footer=True,
+        )
 
 
 def add_rerun_options(parser: argparse.ArgumentParser) -> None:
     """Rerun's customary options (`rr.script_add_args`) and `--spawn`, in their own group."""
     group = parser.add_argument_group(
         "rerun output (default: save tofcut-DATE-TIME.rrd in the working directory; "
-        "--headless: no recording unless --save)"
+        "--headless: no recording unless --save). A saved recording longer than "
+        "--segment-mb or --segment-minutes is written as RUN-0001.rrd, RUN-0002.rrd, ... "
+        "(each file complete, with rerun's footer; view them together with: rerun RUN-*.rrd)"
     )
     # script_add_args only calls add_argument, which an argument group has too.
     rr.script_add_args(cast(argparse.ArgumentParser, group))
@@ -157,6 +241,38 @@ def add_rerun_options(parser: argparse.ArgumentParser) -> None:
             f"rerun's web viewer (port {WEB_VIEWER_PORT}, every interface). Prints a warning"
         ),
     )
+
+    group.add_argument(
+        "--segment-mb",
+        metavar="MB",
+        type=_bound,
+        default=SEGMENT_MB,
+        help=(
+            f"close a saved recording's file at this size and go on in a new one (default "
+            f"{SEGMENT_MB:g} MB, about 30 s at 50 fps; 0: no bound). Bounds the memory rerun "
+            "keeps for the file's footer"
+        ),
+    )
+    group.add_argument(
+        "--segment-minutes",
+        metavar="MIN",
+        type=_bound,
+        default=SEGMENT_MINUTES,
+        help=(
+            "close a saved recording's file after this many minutes and go on in a new one "
+            f"(default {SEGMENT_MINUTES:g}; 0: no bound)"
+        ),
+    )
+
+
+def _bound(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text[:40]!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be 0 (no bound) or more: {text[:40]!r}")
+    return value
 
 
 def _ip_address(text: str) -> str:
@@ -187,13 +303,15 @@ def target_from_args(args: argparse.Namespace, now: dt.datetime | None = None) -
         return RerunTarget("serve", bind=bind or LOOPBACK)
     if args.connect or args.url is not None:
         return RerunTarget("connect", url=args.url)
+    segment_bytes = round(getattr(args, "segment_mb", SEGMENT_MB) * MB)
+    segment_s = getattr(args, "segment_minutes", SEGMENT_MINUTES) * 60.0
     if args.save is not None:
-        return RerunTarget.save(args.save)
+        return RerunTarget.save(args.save, segment_bytes, segment_s)
     if args.spawn:
         return RerunTarget("spawn")
     if args.headless:
         return RerunTarget("none")
-    return RerunTarget.save(default_recording_path(now))
+    return RerunTarget.save(default_recording_path(now), segment_bytes, segment_s)
 
 
 def wait_while_serving(args: argparse.Namespace) -> None:
