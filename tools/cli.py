@@ -65,10 +65,8 @@ LIBRARY_LOGGERS = ("pymodbus", "serial", "rerun", "numba", "PIL", "matplotlib", 
 """Third-party loggers (and Python's warnings, routed to logging): silent by default (tofcut
 says what matters in its own words), warnings with `-v`, everything with `-vv`."""
 
-RUST_LOG_DEFAULT = "error,re_log_encoding::rrd::file_sink=error"
-"""Rerun's native log (it bypasses Python's logging): errors only by default. Recordings are
-written without rerun's footer (`tools.rerun_target` says why) and rerun warns of that for
-every file it opens, hence the file sink's own level."""
+RUST_LOG_DEFAULT = "error"
+"""Rerun's native log (it bypasses Python's logging): errors only by default."""
 
 
 class ArgumentParser(argparse.ArgumentParser):

@@ -200,7 +200,7 @@ def _soak(
             audit.finish()
         grown = memory.stop()
         if sink is not None:
-            size = path.stat().st_size if path.exists() else 0
+            size = sum(f.stat().st_size for f in sink.files if f.exists())
             where = f"kept at {path}" if args.save else "deleted: --save FILE.rrd keeps it"
             print(f"{sink.summary()} ({size / MIB:.1f} MiB; {where})")
     print(run_belt.describe())
