@@ -121,6 +121,17 @@ def output_file(text: str) -> Path:
     return path
 
 
+def output_file_or_folder(text: str) -> Path:
+    """A file to write, or a folder to write files into (`convert -o`): the folder it is in
+    must exist and take files; the path may be a folder already there, or be made as one."""
+    path = Path(text)
+    if path.is_dir():
+        if not os.access(path, os.W_OK | os.X_OK):
+            raise argparse.ArgumentTypeError(f"cannot write into {text}: permission denied")
+        return path
+    return output_file(text)
+
+
 def source(*, captures: bool) -> Callable[[str], SourceSpec]:
     """A SOURCE argument: `usb[:SERIAL]`, `emulator[:SCENE]`, and with `captures` an
     existing capture file (a folder or a missing file is said so)."""

@@ -28,7 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "record": ("tofcut.tools.cmd_record", "record a camera's raw frames to a .tofcap capture"),
     "convert": (
         "tofcut.tools.cmd_convert",
-        "capture → npz of range, amplitude, intensity, valid, xyz and timestamps",
+        "capture → npz arrays, PLY/PCD point clouds or 16-bit depth PNGs",
     ),
     "live": ("tofcut.tools.cmd_live", "track live from a camera (default: the emulated conveyor)"),
     "track": ("tofcut.tools.cmd_track", "track objects in a capture or from a camera"),

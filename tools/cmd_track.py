@@ -38,6 +38,7 @@ from tofcut.tools.pipeline import (
     EventRelay,
     LiveFeed,
     MasksWriter,
+    MotWriter,
     Output,
     RunSummary,
     TracksWriter,
@@ -62,6 +63,11 @@ def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None
     g.add_argument(
         "--tracks-out", type=output_file, metavar="FILE.jsonl", help="tracks, one line a frame"
     )
+    g.add_argument(
+        "--mot-out", type=output_file, metavar="FILE.txt",
+        help="tracks as MOTChallenge rows: frame,id,bb_left,bb_top,bb_width,bb_height,conf,"
+        "x,y,z (frame counts from 1 over the run; x,y,z the 3D centroid, metres)",
+    )  # fmt: skip
     g.add_argument(
         "--masks-out", type=output_file, metavar="FILE.npz", help="label images of every frame"
     )
@@ -245,7 +251,7 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
     if line is not None:
         say(line.summary())
     wait_while_serving(args)
-    for name in ("tracks_out", "masks_out"):
+    for name in ("tracks_out", "mot_out", "masks_out"):
         path = getattr(args, name)
         if path:
             say(f"wrote {path}")
@@ -315,6 +321,8 @@ def _run(
     outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
     if args.tracks_out:
         outputs.append(TracksWriter(args.tracks_out))
+    if args.mot_out:
+        outputs.append(MotWriter(args.mot_out))
     if args.masks_out:
         outputs.append(MasksWriter(args.masks_out))
     outputs.append(RerunOutput(sink))

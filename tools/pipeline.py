@@ -204,6 +204,37 @@ class TracksWriter:
         self._file.close()
 
 
+class MotWriter:
+    """`--mot-out FILE.txt`: MOTChallenge rows (what py-motmetrics and TrackEval read).
+
+    `frame,id,bb_left,bb_top,bb_width,bb_height,conf,x,y,z`, one row per track seen in a
+    frame (the tracks `--tracks-out` lists, in its order). `frame` is the run's own count
+    from 1, one per frame tracked, so it never goes back even when the camera restarts its
+    sequence; the box is the track's `bbox` in MOTChallenge's 1-based pixel convention
+    (bb_left = u0 + 1); conf is 1; x, y, z are the 3D centroid, camera coordinates in
+    metres.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._file: IO[str] = path.open("w", encoding="utf-8")
+        self.frame = 0
+
+    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        self.frame += 1
+        for track in tracked.tracks:
+            if not track.visible:
+                continue
+            u0, v0, u1, v1 = track.bbox
+            x, y, z = (round(float(c), 6) for c in track.centroid)  # as --tracks-out has it
+            self._file.write(
+                f"{self.frame},{track.id},{u0 + 1},{v0 + 1},{u1 - u0},{v1 - v0},1,{x},{y},{z}\n"
+            )
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+
 class MasksWriter:
     """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`.
 
