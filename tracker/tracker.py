@@ -936,7 +936,7 @@ def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F
         return frame.xyz, frame.range, noise
     rng = kernels.median3_within(frame.range, body, loud)
     with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(loud & (frame.range > 0), rng / frame.range, 1.0)
+        scale = np.where(loud & (frame.range != 0), rng / frame.range, 1.0)
     xyz = frame.xyz * scale[..., None]
     quiet = np.where(loud, noise * MEDIAN_NOISE_SHARE, noise)
     return xyz, rng, quiet
