@@ -203,14 +203,17 @@ def fuzz_scenes(tmp: Path, seed: int, cases: int) -> list[str]:
 
 
 SUBPROCESS = """
-import resource, sys
+import re, sys
 from pathlib import Path
 sys.path.insert(0, sys.argv[1])
 import test_fuzz
 failures = getattr(test_fuzz, sys.argv[2])(Path(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]))
 for f in failures[:5]:
     print(f, file=sys.stderr)
-print(len(failures), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024)
+# this program's own peak (VmHWM): Linux carries ru_maxrss over from the parent across exec,
+# so it would report the test runner's peak instead
+peak_kb = int(re.search(r"VmHWM:\\s+(\\d+)", Path("/proc/self/status").read_text()).group(1))
+print(len(failures), peak_kb // 1024)
 """
 
 
