@@ -4,10 +4,28 @@ UTF-8 text, bounded nesting, and unknown keys named with the nearest known one."
 from __future__ import annotations
 
 import difflib
+import math
 import tomllib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
+
+
+def show(value: object) -> str:
+    """A value for a one-line message: its repr, cut short."""
+    text = repr(value)
+    return text if len(text) <= 40 else text[:40] + "…"
+
+
+def as_float(value: object) -> float | None:
+    """A TOML number as a float (inf where an integer is too large for one); None for
+    anything else, a bool included (`true` is not 1 in a configuration file)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf
 
 
 def read_toml(path: str | Path, max_bytes: int) -> dict[str, Any]:

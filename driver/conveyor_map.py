@@ -45,7 +45,8 @@ from typing import Any
 import numpy as np
 
 from tofcut.driver.belt import BeltGeometry
-from tofcut.driver.config_file import read_toml, unknown_keys
+from tofcut.driver.config_file import as_float, read_toml, unknown_keys
+from tofcut.driver.config_file import show as _show
 from tofcut.driver.errors import ConfigError
 
 MAX_READ_REGISTERS = 125
@@ -304,19 +305,10 @@ def _check_int(name: str, value: int, lo: int, hi: int) -> None:
         raise ConfigError(f"{name} must be an integer in {lo}..{hi}, not {_show(value)}")
 
 
-def _show(value: object) -> str:
-    """A value for a message: its repr, cut short."""
-    text = repr(value)
-    return text if len(text) <= 40 else text[:40] + "…"
-
-
 def _number(value: object, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
+    number = as_float(value)
+    if number is None:
         raise ConfigError(f"{where} must be a number, not {_show(value)}")
-    try:
-        number = float(value)
-    except OverflowError:
-        number = math.inf
     if not math.isfinite(number):
         raise ConfigError(f"{where} must be a finite number, not {_show(value)}")
     return number

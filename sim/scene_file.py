@@ -62,7 +62,8 @@ from typing import Any
 
 import numpy as np
 
-from tofcut.driver.config_file import read_toml, unknown_keys
+from tofcut.driver.config_file import as_float, read_toml, unknown_keys
+from tofcut.driver.config_file import show as _show
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import MOD_FREQ_MHZ, check_sensor_size
 from tofcut.sim.geometry import Pose, axis_angle, look_at, rotation_xyz_deg
@@ -135,13 +136,8 @@ class UnknownScene(SceneError):
     """No built-in scene, family or scene file by that name."""
 
 
-def _show(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:40] + "…"
-
-
 def _is_number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
+    return as_float(value) is not None
 
 
 def _number(
@@ -150,12 +146,9 @@ def _number(
 ) -> float:  # fmt: skip
     """A finite number (an integer if `integer`) in lo..hi (above lo if `above`)."""
     kind = "an integer" if integer else "a number"
-    if not _is_number(value) or (integer and not isinstance(value, int)):
+    x = as_float(value)
+    if x is None or (integer and not isinstance(value, int)):
         raise SceneError(f"{what} must be {kind}, not {_show(value)}")
-    try:
-        x = float(value)
-    except OverflowError:
-        x = math.inf
     if not math.isfinite(x):
         raise SceneError(f"{what} must be a finite number, not {_show(value)}")
     if not (lo < x <= hi if above else lo <= x <= hi):
