@@ -36,6 +36,7 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels, stats
 from tofcut.tracker.background import (
+    MEDIAN_NOISE_SHARE,
     BackgroundModel,
     BackgroundParams,
     on_belt_height,
@@ -195,8 +196,6 @@ class _Candidate:
     seen: int = 1
 
 
-MEDIAN_NOISE_SHARE = 0.418
-"""Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
 _EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
@@ -624,7 +623,7 @@ class Tracker:
             bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
         )
         if self.params.rigid and self.belt is not None:
-            body &= on_belt_height(frame.xyz, self.belt)
+            body[body] = on_belt_height(frame.xyz[body], self.belt)
         # a step of `connect_m` parts touching objects of different heights, or three
         # times the noise where that is more: a surface in loud noise is not broken into
         # specks by steps within the noise
@@ -935,10 +934,11 @@ def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F
     if not loud.any():
         return frame.xyz, frame.range, noise
     rng = kernels.median3_within(frame.range, body, loud)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        scale = np.where(loud & (frame.range != 0), rng / frame.range, 1.0)
-    xyz = frame.xyz * scale[..., None]
-    quiet = np.where(loud, noise * MEDIAN_NOISE_SHARE, noise)
+    moved = loud & (frame.range != 0)
+    xyz = frame.xyz.copy()
+    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
+    quiet = noise.copy()
+    quiet[loud] *= MEDIAN_NOISE_SHARE
     return xyz, rng, quiet
 
 
