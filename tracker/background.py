@@ -160,15 +160,14 @@ class BackgroundModel:
         with np.errstate(invalid="ignore", divide="ignore"):
             rays = frame.xyz / frame.range[..., None]
         surface = belt.range_along(rays)
-        on = self.known & np.isfinite(surface) & belt.over_belt(rays * self.range[..., None])
+        points = rays * self.range[..., None]
+        on = self.known & np.isfinite(surface) & belt.over_belt(points)
         with np.errstate(invalid="ignore"):
             off = self.range - surface
             above = on & (off < -np.maximum(3.0 * self.sigma, self.params.min_height_m))
-            above &= on_belt_height(rays * self.range[..., None], belt)
+            above &= on_belt_height(points, belt)
             behind = on & (off > np.maximum(3.0 * self.sigma, self.params.min_height_m))
             behind &= off < BEHIND_BELT_M
-        points = rays * self.range[..., None]
-        with np.errstate(invalid="ignore"):
             level = on & (np.abs(off) < LEVEL_M)
         fix = _objects_only(above, points, belt, level) | behind
         self.range[fix] = surface[fix]
@@ -298,17 +297,15 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
         band = np.floor(side / RAIL_BIN_M).astype(np.int64)
         band -= band.min()
         stretch = np.floor((length - length.min()) / RAIL_STRETCH_M).astype(np.int64)
-        runs = np.zeros(band.max() + 1)
-        for b in np.unique(band):
-            runs[b] = np.unique(stretch[band == b]).size * RAIL_STRETCH_M
+        # how far each band runs: the stretches along it that hold a point of it
+        held = np.unique(np.stack([band, stretch]), axis=1)[0]
+        runs = np.bincount(held, minlength=band.max() + 1) * RAIL_STRETCH_M
         # a rail runs the part's whole length, but for what hides it; a box beside it less
         long = runs >= max(MIN_RAIL_M, RAIL_RUN_SHARE * runs.max())
-        lanes, n = ndimage.label(long)
-        on_rail = np.zeros(ok.sum(), bool)
-        for lane in range(1, n + 1):
-            width = (lanes == lane).sum() * RAIL_BIN_M
-            if width < MAX_RAIL_M:
-                on_rail |= lanes[band] == lane
+        lanes, _ = ndimage.label(long)
+        narrow = np.bincount(lanes) * RAIL_BIN_M < MAX_RAIL_M
+        narrow[0] = False
+        on_rail = narrow[lanes[band]]
         where = np.zeros(mine.sum(), bool)
         where[ok] = on_rail
         rails[box][mine] = where
