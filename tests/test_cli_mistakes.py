@@ -23,6 +23,7 @@ from tofcut.driver.capture import CaptureReader
 from tofcut.tools import cli, cmd_ports, cmd_track
 from tofcut.tools.cli import main
 from tofcut.tools.pipeline import MasksWriter
+from tofcut.tools.status import PipelineStatus
 
 REPO = Path(__file__).resolve().parent.parent
 HEAVY = ("motmetrics", "pandas", "rerun", "numba", "scipy", "maxflow", "tofcut.tracker.tracker")
@@ -94,6 +95,7 @@ def test_output_folders_are_checked_before_the_run(capsys, capture, tmp_path):
         ["convert", str(capture), "-o", f"{gone}/x.npz"],
         ["track", str(capture), "--tracks-out", f"{gone}/t.jsonl"],
         ["track", str(capture), "--masks-out", f"{gone}/m.npz"],
+        ["track", str(capture), "--mots-out", f"{gone}/m.txt"],
     ):
         line = usage_error(capsys, argv)
         assert "folder /nonexistent/out does not exist" in line, line
@@ -182,10 +184,12 @@ def test_masks_are_written_whole_or_not_at_all(tmp_path):
     path = tmp_path / "m.npz"
     writer = MasksWriter(path)
     for seq in range(3):
-        writer.write(Tracked(seq), None)  # type: ignore[arg-type]
+        status = PipelineStatus(0.0, 0.0, seq + 1, 0, 0)
+        writer.write(Tracked(seq), status)  # type: ignore[arg-type]
     writer.close()
     with np.load(path) as z:
         assert z["seq"].tolist() == [0, 1, 2]
+        assert z["frame"].tolist() == [0, 1, 2]
         assert z["labels"].shape == (3, 4, 6)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]  # no partial file left
 

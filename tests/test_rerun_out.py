@@ -392,6 +392,22 @@ def test_every_frame_is_on_both_timelines(recording, run):
     assert stamps == sorted(stamps)
 
 
+def test_every_frame_is_on_the_run_s_index_and_the_host_s_clock(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    # the run-wide index (never back, whatever the camera's sequence does) and the host time
+    index = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="frame")
+    assert sorted(index) == [status.frames - 1 for _, status in frames]
+    host = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="host_time")
+    epoch = dt.datetime(1970, 1, 1)
+    assert sorted((t - epoch) // dt.timedelta(microseconds=1) for t in host) == [
+        t.frame.host_time_ns // 1000 for t, _ in frames
+    ]
+    born = all_rows(path, "events/tracks", "TextLog:text", timeline="frame")
+    assert born
+    assert all(t is not None for t, _ in born)  # events too are placed on the run's index
+
+
 def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
     path, _ = recording
     _, _, frames = run

@@ -154,7 +154,8 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
     assert code == 0
     lines = [json.loads(x) for x in tracks.read_text().splitlines()]
     assert [x["seq"] for x in lines] == list(range(30))
-    assert all(set(x) == {"seq", "device_time_us", "tracks"} for x in lines)
+    keys = {"frame", "seq", "device_time_us", "host_time_ns", "tracks"}
+    assert all(set(x) == keys for x in lines)
     some = [t for x in lines for t in x["tracks"]]
     assert some
     assert set(some[0]) == {"id", "centroid", "velocity", "bbox", "pixels"}

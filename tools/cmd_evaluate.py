@@ -1,11 +1,17 @@
-"""`tofcut evaluate`: score a run against the emulator's ground truth, or a family of lines.
+"""`tofcut evaluate`: score a run against ground truth (the emulator's, or MOTChallenge or
+MOTS rows), or a family of lines.
 
 `tofcut evaluate CAPTURE --tracks T.jsonl --masks M.npz` scores one run. The truth is the
 emulator's (`CAPTURE.truth.npz`, written by `tofcut record emulator:...`). Tracks are
 matched to objects two ways, by 3D centroid within `--gate` and by mask IoU of at least
 `--min-iou`, each scored for MOTA, IDF1 and ID switches; and the mask IoU of every scored
 object-frame is averaged (`tofcut.tools.scoring` says exactly what counts). The first line
-printed is the centroid matching's, as it always was; the second adds the IoU matching's.
+printed is the centroid matching's, as it always was; the second adds the IoU matching's;
+the third gives both matchings' HOTA, DetA and AssA (`tofcut.tools.hota`).
+
+`tofcut evaluate --truth GT.txt --tracks T.jsonl` (MOTChallenge truth, by 3D centroid) or
+`--truth GT.txt --masks M.npz` (MOTS truth, by mask IoU) scores a run against ground truth
+from elsewhere (`tofcut.tools.evaluate_files`).
 
 `--per-object` adds, for every object, the view from its masks alone (no gate): in how many
 of its frames a track held most of it, which tracks those were, and its mean mask IoU with
@@ -25,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
-from tofcut.tools import family
+from tofcut.tools import evaluate_files, family
 from tofcut.tools.arguments import capture_file, existing_file, output_file
 from tofcut.tools.scoring import GATE_M, MIN_IOU, MIN_PIXELS, STATIC_M, VISITS, evaluate, read_run
 from tofcut.tools.sources import SourceError
@@ -39,9 +45,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("capture", type=capture_file, nargs="?", metavar="CAPTURE.tofcap")
     p.add_argument(
-        "--tracks", type=existing_file, metavar="FILE.jsonl", help="the run's --tracks-out"
-    )
-    p.add_argument("--masks", type=existing_file, metavar="FILE.npz", help="the run's --masks-out")
+        "--tracks", type=existing_file, metavar="FILE.jsonl",
+        help="the run's --tracks-out (with --truth also its --mot-out)",
+    )  # fmt: skip
+    p.add_argument(
+        "--masks", type=existing_file, metavar="FILE.npz",
+        help="the run's --masks-out (with --truth also its --mots-out)",
+    )  # fmt: skip
+    p.add_argument(
+        "--truth", type=existing_file, metavar="GT.txt",
+        help="ground truth as MOTChallenge rows (matched to --tracks by 3D centroid) or MOTS "
+        "lines (matched to --masks by mask IoU), instead of CAPTURE's emulator truth",
+    )  # fmt: skip
     p.add_argument("--gate", type=float, default=GATE_M, help="match distance, metres (0.1)")
     p.add_argument("--min-pixels", type=int, default=MIN_PIXELS, help="smallest object scored (50)")
     p.add_argument(
@@ -102,13 +117,16 @@ def per_object(
 
 def run(args: argparse.Namespace) -> int:
     if family.wants_family(args):
-        if args.capture or args.tracks or args.masks:
+        if args.capture or args.tracks or args.masks or args.truth:
             raise SourceError("give either CAPTURE --tracks --masks, or --family/--scene, not both")
         return family.run(args)
+    if args.truth is not None:
+        return evaluate_files.run(args)
     if args.capture is None or args.tracks is None or args.masks is None:
         raise SourceError(
             "evaluate needs CAPTURE --tracks FILE.jsonl --masks FILE.npz "
-            "(or --family NAME / --scene NAME with --seeds)"
+            "(or --truth GT.txt with --tracks or --masks, or --family NAME / --scene NAME "
+            "with --seeds)"
         )
     if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0 or args.min_pixels < 1:
         raise SourceError("--min-iou must be in (0, 1], --gate > 0 and --min-pixels >= 1")
@@ -126,6 +144,11 @@ def run(args: argparse.Namespace) -> int:
         f"by mask IoU >= {args.min_iou:g}: MOTA {i.mota:.3f}  IDF1 {i.idf1:.3f}  "
         f"ID switches {i.id_switches}  (misses {i.misses}, false positives "
         f"{i.false_positives}); mask IoU of every object-frame {scores.mask_iou:.3f}"
+    )
+    hc, hi = c.hota, i.hota
+    print(
+        f"HOTA by centroid {hc.hota:.3f} (DetA {hc.deta:.3f}, AssA {hc.assa:.3f}); "
+        f"by mask IoU {hi.hota:.3f} (DetA {hi.deta:.3f}, AssA {hi.assa:.3f})"
     )
     objects: list[dict[str, Any]] = []
     if args.per_object:

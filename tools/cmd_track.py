@@ -33,6 +33,7 @@ from tofcut.tools.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.ctrl_c import CtrlC
 from tofcut.tools.losses import describe_losses, event_level
+from tofcut.tools.mots import DEFORMABLE_CLASS, RIGID_CLASS, MotsWriter
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
 from tofcut.tools.pipeline import (
     EventRelay,
@@ -67,6 +68,11 @@ def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None
         "--mot-out", type=output_file, metavar="FILE.txt",
         help="tracks as MOTChallenge rows: frame,id,bb_left,bb_top,bb_width,bb_height,conf,"
         "x,y,z (frame counts from 1 over the run; x,y,z the 3D centroid, metres)",
+    )  # fmt: skip
+    g.add_argument(
+        "--mots-out", type=output_file, metavar="FILE.txt",
+        help="track masks as MOTS lines: time_frame id class_id img_height img_width rle "
+        "(time_frame counts from 0 over the run; rle: COCO's, as pycocotools writes it)",
     )  # fmt: skip
     g.add_argument(
         "--masks-out", type=output_file, metavar="FILE.npz", help="label images of every frame"
@@ -251,7 +257,7 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
     if line is not None:
         say(line.summary())
     wait_while_serving(args)
-    for name in ("tracks_out", "mot_out", "masks_out"):
+    for name in ("tracks_out", "mot_out", "mots_out", "masks_out"):
         path = getattr(args, name)
         if path:
             say(f"wrote {path}")
@@ -323,6 +329,9 @@ def _run(
         outputs.append(TracksWriter(args.tracks_out))
     if args.mot_out:
         outputs.append(MotWriter(args.mot_out))
+    if args.mots_out:
+        kind = DEFORMABLE_CLASS if args.deformable else RIGID_CLASS
+        outputs.append(MotsWriter(args.mots_out, kind))
     if args.masks_out:
         outputs.append(MasksWriter(args.masks_out))
     outputs.append(RerunOutput(sink))

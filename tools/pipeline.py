@@ -25,6 +25,7 @@ from tofcut.driver.errors import TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
+from tofcut.tools.frame_stamp import FrameStamp, frame_index
 from tofcut.tools.latency import LatencyHistogram
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -197,7 +198,8 @@ class TracksWriter:
         self._file: IO[str] = path.open("w", encoding="utf-8")
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
-        self._file.write(json.dumps(tracked.to_json(), separators=(",", ":")) + "\n")
+        row = {**FrameStamp.of(tracked, status).to_json(), **tracked.to_json()}
+        self._file.write(json.dumps(row, separators=(",", ":")) + "\n")
         self._file.flush()
 
     def close(self) -> None:
@@ -208,26 +210,26 @@ class MotWriter:
     """`--mot-out FILE.txt`: MOTChallenge rows (what py-motmetrics and TrackEval read).
 
     `frame,id,bb_left,bb_top,bb_width,bb_height,conf,x,y,z`, one row per track seen in a
-    frame (the tracks `--tracks-out` lists, in its order). `frame` is the run's own count
-    from 1, one per frame tracked, so it never goes back even when the camera restarts its
-    sequence; the box is the track's `bbox` in MOTChallenge's 1-based pixel convention
-    (bb_left = u0 + 1); conf is 1; x, y, z are the 3D centroid, camera coordinates in
-    metres.
+    frame (the tracks `--tracks-out` lists, in its order). `frame` is the run-wide index
+    (`tofcut.tools.frame_stamp`) + 1, so it never goes back even when the camera restarts
+    its sequence (the camera's sequence and times are on `--tracks-out`'s line: a row of
+    more columns is one py-motmetrics refuses); the box is the track's `bbox` in
+    MOTChallenge's 1-based pixel convention (bb_left = u0 + 1); conf is 1; x, y, z are the
+    3D centroid, camera coordinates in metres.
     """
 
     def __init__(self, path: Path) -> None:
         self._file: IO[str] = path.open("w", encoding="utf-8")
-        self.frame = 0
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
-        self.frame += 1
+        frame = frame_index(status) + 1
         for track in tracked.tracks:
             if not track.visible:
                 continue
             u0, v0, u1, v1 = track.bbox
             x, y, z = (round(float(c), 6) for c in track.centroid)  # as --tracks-out has it
             self._file.write(
-                f"{self.frame},{track.id},{u0 + 1},{v0 + 1},{u1 - u0},{v1 - v0},1,{x},{y},{z}\n"
+                f"{frame},{track.id},{u0 + 1},{v0 + 1},{u1 - u0},{v1 - v0},1,{x},{y},{z}\n"
             )
         self._file.flush()
 
@@ -236,7 +238,8 @@ class MotWriter:
 
 
 class MasksWriter:
-    """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background) and `seq`.
+    """`--masks-out FILE.npz`: `labels` (frames × H × W, uint16, 0 background), `seq` and
+    `frame` (the run-wide index, `tofcut.tools.frame_stamp`).
 
     Every frame's labels stay in memory until `close()` writes the file (about 50 KB a
     176×144 frame): meant for runs of bounded length, not for unattended live runs. The
@@ -248,20 +251,23 @@ class MasksWriter:
         self.path = path
         self._labels: list[np.ndarray] = []
         self._seq: list[int] = []
+        self._frame: list[int] = []
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
         self._labels.append(tracked.labels)
         self._seq.append(tracked.sequence)
+        self._frame.append(frame_index(status))
 
     def close(self) -> None:
         if not self._labels:
             return
         labels, seq = np.stack(self._labels).astype(np.uint16), np.array(self._seq, np.int64)
-        self._labels, self._seq = [], []
+        frame = np.array(self._frame, np.int64)
+        self._labels, self._seq, self._frame = [], [], []
         partial = self.path.with_name(f".{self.path.name}.partial")
         try:
             with partial.open("wb") as f:
-                np.savez_compressed(f, labels=labels, seq=seq)
+                np.savez_compressed(f, labels=labels, seq=seq, frame=frame)
             os.replace(partial, self.path)
         finally:
             partial.unlink(missing_ok=True)

@@ -30,6 +30,7 @@ from rerun.components import (
 
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.frames import Frame
+from tofcut.tools.frame_stamp import frame_index
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -50,6 +51,10 @@ TRACK_EVENTS = "events/tracks"
 DEVICE_EVENTS = "events/device"
 SEQUENCE = "sequence"
 """Timeline of the device's frame sequence numbers."""
+FRAME = "frame"
+"""Timeline of the run-wide frame index (`tofcut.tools.frame_stamp`): from 0, never back."""
+HOST_TIME = "host_time"
+"""Timeline of when each frame arrived on the host (UTC, the clock of `host_time_ns`)."""
 DEVICE_TIME = "device_time"
 """Timeline of the device's timestamps (time since the camera powered up)."""
 MAX_DEVICE_TIME_US = (2**63 - 1) // 1000
@@ -350,7 +355,7 @@ class FrameLogger:
     def _write_run(self, rows: Sequence[FrameRow], sink_dropped: int, device_time: bool) -> None:
         """`write_frames` for frames that all have, or all lack, a usable device time."""
         for row in rows:
-            self._log_frame_events(row.tracked, device_time)
+            self._log_frame_events(row, device_time)
         frames = [row.tracked.frame for row in rows]
         times = time_columns(rows, device_time)
         send = self.rec.send_columns
@@ -416,12 +421,16 @@ class FrameLogger:
             if not keep_serving:
                 self.rec.disconnect()
 
-    def _log_frame_events(self, tracked: TrackedFrame, device_time: bool = True) -> None:
+    def _log_frame_events(self, row: FrameRow, device_time: bool = True) -> None:
         """What happens at one frame rather than in every frame: the annotation context when
-        the ids change, births and ends, the belt's arrow; at the frame's sequence number and
-        device time (their log time is rerun's own: when they are logged)."""
+        the ids change, births and ends, the belt's arrow; at the frame's sequence number,
+        run-wide index, host time and device time (their log time is rerun's own: when they
+        are logged)."""
         rec = self.rec
+        tracked = row.tracked
         rec.set_time(SEQUENCE, sequence=tracked.sequence)
+        rec.set_time(FRAME, sequence=frame_index(row.status))
+        rec.set_time(HOST_TIME, timestamp=np.datetime64(tracked.frame.host_time_ns, "ns"))
         if device_time:
             rec.set_time(DEVICE_TIME, duration=np.timedelta64(tracked.frame.device_time_us, "us"))
         else:
@@ -536,11 +545,13 @@ class FrameLogger:
 
 
 def time_columns(rows: Sequence[FrameRow], device_time: bool = True) -> list[rr.TimeColumn]:
-    """The frames' sequence numbers, device times (unless not `device_time`) and log times,
-    as rerun's index columns."""
+    """The frames' sequence numbers, device times (unless not `device_time`), run-wide
+    indices, host times and log times, as rerun's index columns."""
     frames = [row.tracked.frame for row in rows]
     columns = [
         rr.TimeColumn(SEQUENCE, sequence=[f.sequence for f in frames]),
+        rr.TimeColumn(FRAME, sequence=[frame_index(row.status) for row in rows]),
+        rr.TimeColumn(HOST_TIME, timestamp=np.array([f.host_time_ns for f in frames], "M8[ns]")),
         rr.TimeColumn(LOG_TIME, timestamp=np.array([row.log_time_ns for row in rows], "M8[ns]")),
     ]
     if device_time:

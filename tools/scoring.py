@@ -6,7 +6,8 @@ object that leaves the field of view and comes back (the emulated scenes loop) i
 object to score, as it is to any tracker: its centroid's leaving the view ends a visit.
 
 Two matchings of tracks to objects, each scored with py-motmetrics (CLEAR MOT: MOTA, ID
-switches; and IDF1):
+switches; and IDF1) and with TrackEval (HOTA, DetA, AssA: `tofcut.tools.hota`, on the same
+objects and tracks; its similarity is the mask IoU, or for centroids 1 − d / (2 · gate)):
 
 - **by centroid**: an object's position is the centroid of its visible surface (truth range
   along each of its pixels' rays), a track's the centroid it reports; they match within
@@ -40,6 +41,7 @@ from tofcut.driver.calibration import pixel_rays
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import CaptureError
 from tofcut.sim.truth import FrameTruth, load_truth, truth_path
+from tofcut.tools.hota import FrameMatch, Hota, centroid_similarity, hota
 from tofcut.tools.sources import SourceError
 
 VISITS = 1000
@@ -66,12 +68,14 @@ class Matching:
     """Object-frames scored (the denominator of MOTA)."""
     misses: int
     false_positives: int
+    hota: Hota
+    """HOTA, DetA and AssA of the same objects and tracks (TrackEval's)."""
 
     def to_json(self) -> dict[str, float | int]:
         return {
             "mota": self.mota, "idf1": self.idf1, "id_switches": self.id_switches,
             "objects": self.objects, "misses": self.misses,
-            "false_positives": self.false_positives,
+            "false_positives": self.false_positives, **self.hota.to_json(),
         }  # fmt: skip
 
 
@@ -174,13 +178,14 @@ def _overlaps(truth: Labels, hyp: Labels) -> npt.NDArray[np.int64]:
     return np.bincount(g * cols + h, minlength=rows * cols).reshape(rows, cols)
 
 
-def _summary(acc: mm.MOTAccumulator) -> Matching:
+def summary(acc: mm.MOTAccumulator, frames: list[FrameMatch]) -> Matching:
+    """A matching's CLEAR MOT scores and IDF1 (py-motmetrics) and its HOTA (TrackEval)."""
     mh = mm.metrics.create()
-    summary = mh.compute(
+    table = mh.compute(
         acc, metrics=["mota", "idf1", "num_switches", "num_objects", "num_false_positives",
                       "num_misses"], name="run",
     )  # fmt: skip
-    row = summary.loc["run"]
+    row = table.loc["run"]
     mota = float(row["mota"])
     return Matching(
         mota=mota if np.isfinite(mota) else 0.0,
@@ -189,6 +194,7 @@ def _summary(acc: mm.MOTAccumulator) -> Matching:
         objects=int(row["num_objects"]),
         misses=int(row["num_misses"]),
         false_positives=int(row["num_false_positives"]),
+        hota=hota(frames),
     )
 
 
@@ -209,6 +215,8 @@ def evaluate(
     """
     by_centroid = mm.MOTAccumulator(auto_id=False)
     by_iou = mm.MOTAccumulator(auto_id=False)
+    centroid_frames: list[FrameMatch] = []
+    iou_frames: list[FrameMatch] = []
     held_ious: list[float] = []
     for frame in _frames(truths, rays, min_pixels):
         seq = frame.truth.sequence
@@ -221,7 +229,10 @@ def evaluate(
         dist = mm.distances.norm2squared_matrix(
             np.array(frame.positions).reshape(-1, 3), hyp_pos, max_d2=gate * gate
         )
-        by_centroid.update(frame.keys, [h["id"] for h in hyps], np.sqrt(dist), frameid=seq)
+        hyp_ids = [h["id"] for h in hyps]
+        by_centroid.update(frame.keys, hyp_ids, np.sqrt(dist), frameid=seq)
+        sim = centroid_similarity(np.array(frame.positions), hyp_pos, gate)
+        centroid_frames.append(FrameMatch(frame.keys, hyp_ids, sim))
 
         hyp = masks.get(seq)
         if hyp is None:
@@ -245,6 +256,7 @@ def evaluate(
             )
         dist_iou = np.where(iou >= min_iou, 1.0 - iou, np.nan)
         by_iou.update(frame.keys, track_ids, dist_iou, frameid=seq)
+        iou_frames.append(FrameMatch(frame.keys, track_ids, np.nan_to_num(iou, nan=0.0)))
     # mask IoU of every centroid-matched pair (read once: mot_events is rebuilt on each access)
     by_seq = {t.sequence: t for t in truths}
     events = by_centroid.mot_events
@@ -259,8 +271,8 @@ def evaluate(
         ious.append(float((a & b).sum() / max(1, (a | b).sum())))
     return Scores(
         frames=len(truths),
-        by_centroid=_summary(by_centroid),
-        by_iou=_summary(by_iou),
+        by_centroid=summary(by_centroid, centroid_frames),
+        by_iou=summary(by_iou, iou_frames),
         mask_iou=float(np.mean(held_ious)) if held_ious else 0.0,
         matched_iou=float(np.mean(ious)) if ious else 0.0,
     )
