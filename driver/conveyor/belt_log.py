@@ -35,8 +35,8 @@ from types import TracebackType
 from typing import IO, Any
 
 from tofcut.driver.belt import MAX_BELT_SPEED_MPS, BeltHistory, BeltReading, KnownBelt
+from tofcut.driver.conveyor.exposure_clock import ExposureClock
 from tofcut.driver.errors import CaptureError, ConfigError
-from tofcut.driver.exposure_clock import ExposureClock
 from tofcut.driver.frames import Frame
 
 SUFFIX = ".conveyor.jsonl"

@@ -29,7 +29,7 @@ from pymodbus.framer import FramerType
 from pymodbus.pdu import ModbusPDU
 
 from tofcut.driver.belt import BeltHistory, BeltReading, unwrap_count
-from tofcut.driver.conveyor_map import LinkSettings, RegisterMap
+from tofcut.driver.conveyor.config import LinkSettings, RegisterMap
 from tofcut.driver.errors import ConfigError, LinkError
 
 log = logging.getLogger(__name__)

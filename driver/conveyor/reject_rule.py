@@ -13,16 +13,15 @@ import operator
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NoReturn
+from typing import Any, ClassVar, NoReturn, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.errors import ConfigError
-from tofcut.tracker.tracks import Track
 
-F64 = npt.NDArray[np.float64]
 HEIGHT_PERCENTILE = 95.0
 """The object's height is this percentile of its points' heights (ignores flying pixels)."""
 EXTENT_PERCENTILE = 2.0
@@ -33,6 +32,25 @@ HULL_BIN_M = 0.002
 MAX_NESTING = 64
 """The deepest a rule may nest `not`s and parentheses (each counts one level): the parser and
 the rule it builds recurse once per level, so an unbounded depth would end in RecursionError."""
+
+
+class TrackView(Protocol):
+    """What the rules read of a track (`tofcut.tracker.tracks.Track` is one): named here so
+    that the driver, which the tracker imports, does not import the tracker."""
+
+    __dataclass_fields__: ClassVar[dict[str, Any]]
+    """A dataclass: the rejects keep a copy without its points (`dataclasses.replace`)."""
+
+    @property
+    def id(self) -> int: ...
+    @property
+    def bbox(self) -> tuple[int, int, int, int]: ...
+    @property
+    def pixels(self) -> int: ...
+    @property
+    def points(self) -> npt.NDArray[np.float32]: ...
+    @property
+    def visible(self) -> bool: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,14 +71,14 @@ class TrackMeasures:
     pixels: int
     along: float
     """m: the centre of the object's extent along the belt, from the camera's axis."""
-    track: Track
+    track: TrackView
 
 
 PROPERTIES = ("height", "length", "width", "footprint", "volume", "pixels")
 """The measures a rule may name."""
 
 
-def measure_track(track: Track, belt: BeltGeometry) -> TrackMeasures | None:
+def measure_track(track: TrackView, belt: BeltGeometry) -> TrackMeasures | None:
     """A track's measures over the belt; None when it has too few points this frame."""
     points = np.asarray(track.points, dtype=np.float64).reshape(-1, 3)
     if len(points) < 3:

@@ -23,8 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
-from tofcut.tracker.reject_rule import RejectRule, TrackMeasures, measure_track
-from tofcut.tracker.tracks import Track
+from tofcut.driver.conveyor.reject_rule import RejectRule, TrackMeasures, TrackView, measure_track
 
 log = logging.getLogger(__name__)
 
@@ -143,11 +142,12 @@ class RejectScheduler:
             return RejectStats(**self._stats)
 
     def observe(
-        self, tracks: Iterable[Track], time_ns: int, frame_shape: tuple[int, int] | None = None
+        self, tracks: Iterable[TrackView], time_ns: int, frame_shape: tuple[int, int] | None = None
     ) -> None:
         """Record one frame's tracks (camera coordinates) taken at host time `time_ns` (the
-        exposure's: see `tofcut.driver.exposure_clock`). With the frame's (H, W), objects cut
-        by the image border vote on the rule but are not used to place the object."""
+        exposure's: see `tofcut.driver.conveyor.exposure_clock`). With the frame's (H, W),
+        objects cut by the image border vote on the rule but are not used to place the
+        object."""
         belt = self.belt
         if belt is None:
             with self._lock:

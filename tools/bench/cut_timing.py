@@ -27,11 +27,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.frames import Frame
-from tofcut.tracker.graphcut import Solution, solve_cropped, solve_reduced, solve_reference
-from tofcut.tracker.segment import (
+from tofcut.tracker.paper.graphcut import Solution, solve_cropped, solve_reduced, solve_reference
+from tofcut.tracker.paper.segment import (
     Energy,
     SegmentParams,
     Target,
@@ -39,8 +39,6 @@ from tofcut.tracker.segment import (
     estimate_model,
     segment,
 )
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

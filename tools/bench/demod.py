@@ -15,8 +15,8 @@ from tofcut.sim.crowd import resized
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import load_scene
-from tofcut.tools.bench_frames import raw_run
-from tofcut.tools.bench_timing import median_seconds
+from tofcut.tools.bench.frames import raw_run
+from tofcut.tools.bench.timing import median_seconds
 
 SIZES = ((176, 144), (352, 288), (640, 480))
 FRAMES = 8

@@ -28,13 +28,13 @@ from tofcut.driver.protocol import Request
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.usb_backend import EmulatedBackend
-from tofcut.tools import pipeline
-from tofcut.tools.bench_frames import ReplaySource, render_run
-from tofcut.tools.bench_tracker import BeltTracker
-from tofcut.tools.cmd_track import RerunOutput
-from tofcut.tools.pipeline import LiveFeed, RunSummary
-from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import RerunTarget
+from tofcut.tools.bench.frames import ReplaySource, render_run
+from tofcut.tools.bench.tracker import BeltTracker
+from tofcut.tools.pipeline import run as pipeline
+from tofcut.tools.pipeline.outputs import RerunOutput
+from tofcut.tools.pipeline.rerun_sink import RerunSink
+from tofcut.tools.pipeline.rerun_target import RerunTarget
+from tofcut.tools.pipeline.run import LiveFeed, RunSummary
 
 SCENE = "conveyor"
 READ_BYTES = 1 << 20

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from tofcut.tools.bench_report import Fit
+from tofcut.tools.bench.report import Fit
 
 PANEL = (520, 400)
 MARGIN = (70, 30, 20, 50)

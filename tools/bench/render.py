@@ -1,6 +1,6 @@
 """Bench stage: how fast the emulator renders each built-in scene and the crowds of 1 to 20
 boxes, at 176×144: the median CPU time of a frame over consecutive frames at the scene's
-frame rate (as `sim.bench.render_rate` walks them, on the bench's clock)."""
+frame rate (as `tools.bench.render_rate.render_rate` walks them, on the bench's clock)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from tofcut.sim.catalog import open_scene, scene_names
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
-from tofcut.tools.bench_timing import CLOCK
+from tofcut.tools.bench.timing import CLOCK
 
 CROWDS = (1, 5, 10, 20)
 

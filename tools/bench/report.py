@@ -10,7 +10,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from tofcut.tools.bench_timing import fit_exponent
+from tofcut.tools.bench.timing import fit_exponent
 
 Results = dict[str, Any]
 """Stage name → the stage's JSON result (a stage that failed is missing)."""

@@ -1,16 +1,16 @@
 """Bench stage: what logging to a rerun file costs next to tracking the same frames
-(`tools.rerun_sink.measure_logging_cost`), on the conveyor at 176×144."""
+(`tools.pipeline.rerun_sink.measure_logging_cost`), on the conveyor at 176×144."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from tofcut.sim.catalog import open_scene
-from tofcut.tools.bench_frames import raw_run
-from tofcut.tools.bench_timing import CLOCK
-from tofcut.tools.bench_tracker import WARM_FRAMES, BeltTracker
-from tofcut.tools.rerun_sink import measure_logging_cost
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.bench.frames import raw_run
+from tofcut.tools.bench.timing import CLOCK
+from tofcut.tools.bench.tracker import WARM_FRAMES, BeltTracker
+from tofcut.tools.pipeline.rerun_sink import measure_logging_cost
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
 
 SCENE = "conveyor"

@@ -1,6 +1,6 @@
 """Does a long run written to a rerun file hold resident memory flat? Measure it.
 
-`python -m tofcut.tools.rerun_memory --frames 10000` tracks a short emulated conveyor run,
+`python -m tofcut.tools.bench.rerun_memory --frames 10000` tracks a short emulated conveyor run,
 then hands it to a `RerunSink` writing a temporary .rrd file round and round, each round
 renumbered (sequence numbers and device time go on) and with new track ids (on a conveyor
 ids grow without end), while `soak.MemorySampler` samples RSS. It prints RSS as the frames
@@ -23,12 +23,12 @@ import numpy.typing as npt
 
 from tofcut.driver.calibration import Calibration
 from tofcut.sim.catalog import open_scene
-from tofcut.tools.bench_frames import raw_run
-from tofcut.tools.bench_tracker import WARM_FRAMES, BeltTracker
-from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import MB, SEGMENT_MB, RerunTarget
-from tofcut.tools.soak import MemoryGrowth, MemorySampler, rss_bytes
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.bench.frames import raw_run
+from tofcut.tools.bench.tracker import WARM_FRAMES, BeltTracker
+from tofcut.tools.experiments.soak import MemoryGrowth, MemorySampler, rss_bytes
+from tofcut.tools.pipeline.rerun_sink import RerunSink
+from tofcut.tools.pipeline.rerun_target import MB, SEGMENT_MB, RerunTarget
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 MIB = 1024 * 1024

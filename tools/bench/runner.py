@@ -1,6 +1,6 @@
 """Running `tofcut bench` stages: each in a fresh Python process of its own, pinned to one
 core, with every numeric library held to one thread, so no stage warms or slows another and
-the numbers are one core's. `python -m tofcut.tools.bench_runner STAGE OUT.json [--quick]
+the numbers are one core's. `python -m tofcut.tools.bench.runner STAGE OUT.json [--quick]
 [--cpu N]` is what the parent runs for each stage.
 """
 
@@ -18,12 +18,12 @@ from pathlib import Path
 from typing import Any
 
 STAGES = {
-    "demod": "tofcut.tools.bench_demod",
-    "segment": "tofcut.tools.bench_segment",
-    "tracker": "tofcut.tools.bench_tracker",
-    "live": "tofcut.tools.bench_live",
-    "rerun": "tofcut.tools.bench_rerun",
-    "render": "tofcut.tools.bench_render",
+    "demod": "tofcut.tools.bench.demod",
+    "segment": "tofcut.tools.bench.segment",
+    "tracker": "tofcut.tools.bench.tracker",
+    "live": "tofcut.tools.bench.live",
+    "rerun": "tofcut.tools.bench.rerun_logging",
+    "render": "tofcut.tools.bench.render",
 }
 """Stage name → module with `run(quick: bool) -> dict` (JSON-able)."""
 
@@ -59,7 +59,7 @@ def run_stage(name: str, quick: bool, out: Path, cpu: int | None) -> StageRun:
     """Run one stage in its own process; its JSON goes to `out`."""
     if name not in STAGES:
         raise ValueError(f"no bench stage {name!r}; the stages are {', '.join(STAGES)}")
-    cmd = [sys.executable, "-m", "tofcut.tools.bench_runner", name, str(out)]
+    cmd = [sys.executable, "-m", "tofcut.tools.bench.runner", name, str(out)]
     if quick:
         cmd.append("--quick")
     if cpu is not None:
@@ -76,7 +76,7 @@ def run_stage(name: str, quick: bool, out: Path, cpu: int | None) -> StageRun:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tofcut.tools.bench_runner")
+    p = argparse.ArgumentParser(prog="python -m tofcut.tools.bench.runner")
     p.add_argument("stage", choices=sorted(STAGES))
     p.add_argument("out", type=Path)
     p.add_argument("--quick", action="store_true")

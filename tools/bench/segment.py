@@ -1,5 +1,5 @@
-"""Bench stage: segmentation of one object per case (the cases of `tofcut.tools.segbench`):
-the fast exact cut against the full-frame reference cut (`tracker.bench.time_cut`), and
+"""Bench stage: segmentation of one object per case (the cases of `bench.segment_cases`): the
+fast exact cut against the full-frame reference cut (`bench.cut_timing.time_cut`), and
 OpenCV's grabCut, the generic tool a user would reach for, on the same frame, with IoU
 against ground truth for each.
 
@@ -24,10 +24,10 @@ import numpy.typing as npt
 from tofcut.driver.frames import Frame
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tools.reproduce import deepest_pixel, iou
-from tofcut.tools.segbench import CASES
-from tofcut.tracker.bench import time_cut
-from tofcut.tracker.segment import Energy, Target, segment
+from tofcut.tools.bench.cut_timing import time_cut
+from tofcut.tools.bench.segment_cases import CASES
+from tofcut.tools.experiments.reproduce import deepest_pixel, iou
+from tofcut.tracker.paper.segment import Energy, Target, segment
 
 GRABCUT_ITERATIONS = 5
 INSTALL_HINT = (

@@ -1,5 +1,5 @@
 """The segmentation benchmark on emulated 176×144 frames: one object per cut, reference
-against fast (see `tofcut.tracker.bench`); `tofcut bench` reports it."""
+against fast (see `tofcut.tools.bench.cut_timing`); `tofcut bench` reports it."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tools.reproduce import deepest_pixel
-from tofcut.tracker.bench import CutTiming, time_cut
-from tofcut.tracker.segment import Energy, Target
+from tofcut.tools.bench.cut_timing import CutTiming, time_cut
+from tofcut.tools.experiments.reproduce import deepest_pixel
+from tofcut.tracker.paper.segment import Energy, Target
 
 CASES: tuple[tuple[str, str, Energy, int], ...] = (
     ("paper-fig1", "target-box", Energy.RANGE_DATA, 21),

@@ -20,9 +20,9 @@ from tofcut.driver.frames import RawFrame
 from tofcut.driver.stream import FrameParser
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.renderer import SceneSource
-from tofcut.tools.bench_frames import device_info, wire_run
-from tofcut.tools.bench_timing import CLOCK, percentiles_ms
-from tofcut.tools.sources import belt_of, scene_metadata
+from tofcut.tools.bench.frames import device_info, wire_run
+from tofcut.tools.bench.timing import CLOCK, percentiles_ms
+from tofcut.tools.pipeline.sources import belt_of, scene_metadata
 from tofcut.tracker.belt_prior import known_speed_prior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame

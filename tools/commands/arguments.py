@@ -13,7 +13,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from tofcut.driver.errors import TofcutError
-from tofcut.tools.sources import SourceError, SourceSpec
+from tofcut.tools.pipeline.sources import SourceError, SourceSpec
 
 CAPTURE_SUFFIX = ".tofcap"
 

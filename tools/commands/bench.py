@@ -15,10 +15,10 @@ from typing import Any
 
 import numpy as np
 
-from tofcut.tools.bench_plot import draw_scaling
-from tofcut.tools.bench_report import fits, markdown, targets, to_json
-from tofcut.tools.bench_runner import STAGES, bench_cpu, run_stage
-from tofcut.tools.bench_segment import INSTALL_HINT, have_opencv
+from tofcut.tools.bench.plot import draw_scaling
+from tofcut.tools.bench.report import fits, markdown, targets, to_json
+from tofcut.tools.bench.runner import STAGES, bench_cpu, run_stage
+from tofcut.tools.bench.segment import INSTALL_HINT, have_opencv
 
 DEFAULT_OUT = Path("tofcut-bench")
 

@@ -1,5 +1,5 @@
 """`tofcut convert CAPTURE -o OUT`: a capture's frames as arrays (npz), point clouds (PLY,
-PCD) or depth images (16-bit PNG with `intrinsics.json`); see `tools.export`."""
+PCD) or depth images (16-bit PNG with `intrinsics.json`); see `tools.pipeline.export`."""
 
 from __future__ import annotations
 
@@ -11,10 +11,10 @@ import numpy as np
 
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.demod import demodulate
-from tofcut.tools import export
-from tofcut.tools.arguments import UsageError, capture_file, output_file_or_folder
-from tofcut.tools.cmd_record import stats_summary
-from tofcut.tools.progress import Progress
+from tofcut.tools.commands.arguments import UsageError, capture_file, output_file_or_folder
+from tofcut.tools.commands.progress import Progress
+from tofcut.tools.pipeline import export
+from tofcut.tools.pipeline.losses import stats_summary
 
 FORMATS = ("npz", "ply", "pcd", "png")
 

@@ -11,7 +11,7 @@ from tofcut.driver.errors import DeviceError
 from tofcut.driver.protocol import PRODUCT_ID, VENDOR_ID
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.usb_backend import EmulatedBackend
-from tofcut.tools.sources import scene_source
+from tofcut.tools.pipeline.sources import scene_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -4,7 +4,7 @@
 emulator's (`CAPTURE.truth.npz`, written by `tofcut record emulator:...`). Tracks are
 matched to objects two ways, by 3D centroid within `--gate` and by mask IoU of at least
 `--min-iou`, each scored for MOTA, IDF1 and ID switches; and the mask IoU of every scored
-object-frame is averaged (`tofcut.tools.scoring` says exactly what counts). The first line
+object-frame is averaged (`tools.evaluation.scoring` says exactly what counts). The first line
 printed is the centroid matching's, as it always was; the second adds the IoU matching's.
 
 `--per-object` adds, for every object, the view from its masks alone (no gate): in how many
@@ -12,7 +12,7 @@ of its frames a track held most of it, which tracks those were, and its mean mas
 that track over all its frames (0 where none held it): "kept one id in every frame".
 
 `tofcut evaluate --family NAME --seeds A-B` (or `--scene PATTERN --seeds A-B`) records,
-tracks and scores a line per seed (`tofcut.tools.family`): what a tracker does on lines it
+tracks and scores a line per seed (`tools.evaluation.family`): what a tracker does on lines it
 was not tuned on, beside a baseline.
 """
 
@@ -22,15 +22,11 @@ import argparse
 import json
 from typing import Any
 
-import numpy as np
-
-from tofcut.sim.truth import FrameTruth
-from tofcut.tools import family
-from tofcut.tools.arguments import capture_file, existing_file, output_file
-from tofcut.tools.scoring import GATE_M, MIN_IOU, MIN_PIXELS, STATIC_M, VISITS, evaluate, read_run
-from tofcut.tools.sources import SourceError
-
-__all__ = ["STATIC_M", "VISITS", "per_object", "register", "run", "score"]
+from tofcut.tools.commands.arguments import capture_file, existing_file, output_file
+from tofcut.tools.evaluation import family
+from tofcut.tools.evaluation.run_scores import per_object
+from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, evaluate, read_run
+from tofcut.tools.pipeline.sources import SourceError
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -51,53 +47,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--json", type=output_file, help="also write every number here")
     family.add_family_options(p)
     p.set_defaults(func=run)
-
-
-def score(
-    truths: list[FrameTruth],
-    tracks: dict[int, list[dict[str, Any]]],
-    masks: dict[int, np.ndarray],
-    rays: np.ndarray,
-    gate: float = GATE_M,
-    min_pixels: int = MIN_PIXELS,
-) -> dict[str, float]:
-    """MOTA, IDF1, ID switches (centroid matching) and mean mask IoU of matched objects.
-
-    The dict this has always returned; `tofcut.tools.scoring.evaluate` gives every number.
-    """
-    return evaluate(truths, tracks, masks, rays, gate, min_pixels).legacy()
-
-
-def per_object(
-    truths: list[FrameTruth], masks: dict[int, np.ndarray], min_pixels: int = 50
-) -> list[dict[str, Any]]:
-    """Per object (all its frames with at least `min_pixels` visible pixels): frames, frames
-    a track held most of it, the ids of those tracks, and the mean mask IoU with them."""
-    seen: dict[int, dict[str, Any]] = {}
-    for truth in truths:
-        labels = masks.get(truth.sequence)
-        for obj in truth.objects:
-            mine = truth.labels == obj.id
-            n = int(mine.sum())
-            if n < min_pixels:
-                continue
-            row = seen.setdefault(obj.id, {"id": obj.id, "name": obj.name, "frames": 0,
-                                           "held": 0, "track_ids": set(), "iou": 0.0})  # fmt: skip
-            row["frames"] += 1
-            if labels is None:
-                continue
-            ids, counts = np.unique(labels[mine], return_counts=True)
-            best = int(ids[np.argmax(counts)])
-            if best == 0 or counts.max() * 2 <= n:
-                continue
-            held = labels == best
-            row["held"] += 1
-            row["track_ids"].add(best)
-            row["iou"] += float((held & mine).sum() / (held | mine).sum())
-    return [
-        {**r, "track_ids": sorted(r["track_ids"]), "iou": r["iou"] / r["frames"]}
-        for r in sorted(seen.values(), key=lambda r: int(r["id"]))
-    ]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -9,8 +9,8 @@ from typing import Any
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.camera import Camera
 from tofcut.driver.protocol import MOD_FREQ_MHZ, Register, unambiguous_range_m
-from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
-from tofcut.tools.sources import open_source
+from tofcut.tools.commands.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.pipeline.sources import open_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

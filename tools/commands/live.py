@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-from tofcut.tools.cmd_track import add_tracking_options, track
-from tofcut.tools.conveyor_options import add_conveyor_options
-from tofcut.tools.options import add_camera_options, add_source_argument
-from tofcut.tools.sources import SourceError
+from tofcut.tools.commands.options import add_camera_options, add_source_argument
+from tofcut.tools.commands.tracking import add_tracking_options, track
+from tofcut.tools.pipeline.conveyor_line import add_conveyor_options
+from tofcut.tools.pipeline.sources import SourceError
 
 DEFAULT_SECONDS = 10.0
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from tofcut.driver.config import CameraConfig, TriggerMode
-from tofcut.tools.arguments import source
-from tofcut.tools.sources import SourceSpec
+from tofcut.tools.commands.arguments import source
+from tofcut.tools.pipeline.sources import SourceSpec
 
 
 def add_source_argument(

@@ -3,7 +3,7 @@
 The capture's metadata keeps the belt the run knows at its start (the map's, else the
 scene's: `belt` and `belt_source`); with a conveyor linked (`--conveyor PORT`,
 `--conveyor-emulator`), its encoder readings go to a conveyor log beside the capture
-(`run.conveyor.jsonl`, `tofcut.driver.belt_log`), so that `tofcut track run.tofcap` replays
+(`run.conveyor.jsonl`, `tofcut.driver.conveyor.belt_log`), so that `tofcut track run.tofcap` replays
 the belt prior the live run had.
 
 `--bare` records as a real camera would: the capture's metadata holds only the camera's own
@@ -18,20 +18,20 @@ import sys
 import time
 from typing import Any
 
-from tofcut.driver.belt_log import BeltLogWriter, belt_log_path
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureWriter, bare_metadata, capture_metadata
+from tofcut.driver.conveyor.belt_log import BeltLogWriter, belt_log_path
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.truth import FrameTruth, save_truth, truth_path
-from tofcut.tools.arguments import output_file, positive_float, positive_int
-from tofcut.tools.belt_source import BeltResolution, resolve_run_belt, warn
-from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
-from tofcut.tools.losses import describe_losses
-from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
-from tofcut.tools.progress import Progress
-from tofcut.tools.sources import Opened, SourceError, open_source
+from tofcut.tools.commands.arguments import output_file, positive_float, positive_int
+from tofcut.tools.commands.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.commands.progress import Progress
+from tofcut.tools.pipeline.belt_source import BeltResolution, resolve_run_belt, warn
+from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_options, open_conveyor
+from tofcut.tools.pipeline.losses import describe_losses, stats_summary
+from tofcut.tools.pipeline.sources import Opened, SourceError, open_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -55,14 +55,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_camera_options(p)
     add_conveyor_options(p, rejects=False)
     p.set_defaults(func=run)
-
-
-def stats_summary(stats: StreamStats) -> str:
-    text = f"{stats.frames} frames, {stats.lost} lost, {stats.damaged} damaged"
-    if stats.gaps:
-        ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in list(stats.gaps)[-5:])
-        text += f" (lost sequence numbers: {ranges})"
-    return text
 
 
 def _print_event(event: DeviceEvent) -> None:

@@ -29,7 +29,7 @@ def register(subparsers: Any) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the experiments, print each claim's verdict, write the report."""
     from tofcut.driver.errors import ConfigError
-    from tofcut.tools.reproduce import run_figures, write_report
+    from tofcut.tools.experiments.reproduce import run_figures, write_report
 
     if args.seeds < 1:
         raise ConfigError(f"--seeds must be at least 1, not {args.seeds}")

@@ -22,16 +22,8 @@ from tofcut.driver.camera import Camera
 from tofcut.driver.events import DeviceEvent
 from tofcut.sim.drill import FAULTS
 from tofcut.sim.modbus_server import Fault
-from tofcut.tools.belt_source import BeltResolution, resolve_run_belt
-from tofcut.tools.cmd_track import ConveyorOutput, RerunOutput
-from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
-from tofcut.tools.losses import describe_losses, event_level
-from tofcut.tools.options import add_camera_options, config_from_args
-from tofcut.tools.pipeline import EventRelay, LiveFeed, Output, RunSummary, run
-from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import RerunTarget
-from tofcut.tools.run_belt import RunBelt
-from tofcut.tools.soak import (
+from tofcut.tools.commands.options import add_camera_options, config_from_args
+from tofcut.tools.experiments.soak import (
     HOST_OVERFLOW,
     UNEXPLAINED,
     FaultInjector,
@@ -40,7 +32,15 @@ from tofcut.tools.soak import (
     MemoryGrowth,
     MemorySampler,
 )
-from tofcut.tools.sources import Opened, SourceError, SourceSpec, open_source
+from tofcut.tools.pipeline.belt_source import BeltResolution, resolve_run_belt
+from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_options, open_conveyor
+from tofcut.tools.pipeline.losses import describe_losses, event_level
+from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
+from tofcut.tools.pipeline.rerun_sink import RerunSink
+from tofcut.tools.pipeline.rerun_target import RerunTarget
+from tofcut.tools.pipeline.run import EventRelay, LiveFeed, Output, RunSummary, run
+from tofcut.tools.pipeline.run_belt import RunBelt
+from tofcut.tools.pipeline.sources import Opened, SourceError, SourceSpec, open_source
 from tofcut.tracker.tracker import Tracker
 
 MAX_GROWTH_MIB = 10.0

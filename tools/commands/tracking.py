@@ -1,4 +1,5 @@
-"""`tofcut track SOURCE` and `tofcut live [CAMERA]`: track objects, export tracks and masks.
+"""What `tofcut track SOURCE` and `tofcut live [CAMERA]` share: the tracking options and the
+run they ask for (track objects, export tracks and masks); the two commands only register.
 
 SOURCE is a capture file, `usb[:SERIAL]` or `emulator[:SCENE]`. Offline sources show a
 progress bar; live ones a one-line status (fps, tracks, losses).
@@ -14,13 +15,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from tofcut.driver.belt_log import ReplayedLink, belt_log_path
 from tofcut.driver.camera import Camera
 from tofcut.driver.capture import CaptureReader
+from tofcut.driver.conveyor.belt_log import ReplayedLink, belt_log_path
 from tofcut.driver.demod import demodulate
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.frames import Frame
-from tofcut.tools.arguments import (
+from tofcut.tools.commands.arguments import (
     UsageError,
     non_negative_float,
     output_file,
@@ -29,12 +30,16 @@ from tofcut.tools.arguments import (
     positive_float,
     positive_int,
 )
-from tofcut.tools.belt_source import resolve_run_belt, run_metadata
-from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
-from tofcut.tools.ctrl_c import CtrlC
-from tofcut.tools.losses import describe_losses, event_level
-from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
-from tofcut.tools.pipeline import (
+from tofcut.tools.commands.ctrl_c import CtrlC
+from tofcut.tools.commands.options import config_from_args
+from tofcut.tools.commands.progress import Progress
+from tofcut.tools.pipeline.belt_source import resolve_run_belt, run_metadata
+from tofcut.tools.pipeline.conveyor_line import ConveyorLine, open_conveyor
+from tofcut.tools.pipeline.losses import describe_losses, event_level
+from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
+from tofcut.tools.pipeline.rerun_sink import NullSink, RerunSink
+from tofcut.tools.pipeline.rerun_target import add_rerun_options, wait_while_serving
+from tofcut.tools.pipeline.run import (
     EventRelay,
     LiveFeed,
     MasksWriter,
@@ -45,12 +50,9 @@ from tofcut.tools.pipeline import (
     offline,
     run,
 )
-from tofcut.tools.progress import Progress
-from tofcut.tools.rerun_sink import NullSink, RerunSink
-from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
-from tofcut.tools.run_belt import RunBelt
-from tofcut.tools.sources import Opened, SourceError, open_source, scene_target
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.pipeline.run_belt import RunBelt
+from tofcut.tools.pipeline.sources import Opened, SourceError, open_source, scene_target
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker, TrackerParams
@@ -101,15 +103,6 @@ def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None
     add_rerun_options(p)
 
 
-def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("track", help="track objects in a capture or from a camera")
-    add_source_argument(p)
-    add_tracking_options(p)
-    add_camera_options(p)
-    add_conveyor_options(p)
-    p.set_defaults(func=lambda a: track(a, live=a.source.kind != "capture"))
-
-
 class StatusLine:
     """The live one-line status on stderr: fps, tracks, losses, latency."""
 
@@ -125,34 +118,6 @@ class StatusLine:
 
     def close(self) -> None:
         self._progress.close()
-
-
-class RerunOutput:
-    """The rerun sink as a pipeline output."""
-
-    def __init__(self, sink: RerunSink | NullSink) -> None:
-        self.sink = sink
-
-    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
-        self.sink.log(tracked, status)
-
-    def close(self) -> None:
-        self.sink.close()
-
-
-class ConveyorOutput:
-    """The conveyor line as the first output: every tracked frame goes to the reject rule
-    right after tracking; closing it stops the link before rerun closes, so a reject fired
-    at the end still reaches the recording."""
-
-    def __init__(self, line: ConveyorLine) -> None:
-        self.line = line
-
-    def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
-        self.line.observe(tracked)
-
-    def close(self) -> None:
-        self.line.close()
 
 
 def track(args: argparse.Namespace, *, live: bool) -> int:

@@ -1,6 +1,6 @@
 """A plain baseline tracker: depth background subtraction, 3D-cut components, Norfair.
 
-`python -m tofcut.tools.baseline CAPTURE.tofcap --tracks-out T.jsonl --masks-out M.npz`
+`python -m tofcut.tools.evaluation.baseline CAPTURE.tofcap --tracks-out T.jsonl --masks-out M.npz`
 writes the formats `tofcut track` writes, so `tofcut evaluate` scores both alike. It reads
 nothing but the camera's stream (no metadata) and its parameters are the same on every line:
 it is the number a graph cut has to beat.
@@ -32,6 +32,7 @@ import numpy.typing as npt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from tofcut._types import F64
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.frames import Frame
@@ -46,7 +47,6 @@ MIN_PIXELS = 50
 MATCH_M = 0.1
 """Norfair's distance threshold: a detection this far from a track's prediction is another."""
 HIT_MAX = 15
-F64 = npt.NDArray[np.float64]
 
 
 def components(stands_out: npt.NDArray[np.bool_], xyz: F64) -> tuple[npt.NDArray[np.int64], int]:
@@ -154,7 +154,9 @@ def track(frames: Iterable[Frame]) -> tuple[list[dict[str, Any]], list[npt.NDArr
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m tofcut.tools.baseline", description=__doc__)
+    p = argparse.ArgumentParser(
+        prog="python -m tofcut.tools.evaluation.baseline", description=__doc__
+    )
     p.add_argument("capture", type=Path, metavar="CAPTURE.tofcap")
     p.add_argument("--tracks-out", type=Path, required=True, metavar="FILE.jsonl")
     p.add_argument("--masks-out", type=Path, required=True, metavar="FILE.npz")

@@ -11,8 +11,8 @@ noise seeds. For each line:
    --frames N`: nothing but the camera's stream, and the ground truth beside it), unless
    `--work` already holds a complete one recorded the same way;
 2. run each tracker on it as a user would, in its own process: `tofcut track CAPTURE
-   --tracks-out ... --masks-out ...`, and `python -m tofcut.tools.baseline CAPTURE ...`;
-3. score each run both ways (`tofcut.tools.scoring`).
+   --tracks-out ... --masks-out ...`, and `python -m tofcut.tools.evaluation.baseline CAPTURE ...`;
+3. score each run both ways (`tofcut.tools.evaluation.scoring`).
 
 Lines run in parallel processes (`--workers`). A line that fails is reported with its seed
 and the error, and makes the exit code 1; it is never dropped silently.
@@ -43,8 +43,8 @@ from tofcut.driver.errors import TofcutError
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.truth import load_truth, truth_path
-from tofcut.tools.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
-from tofcut.tools.sources import SourceError, scene_metadata, scene_source
+from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
+from tofcut.tools.pipeline.sources import SourceError, scene_metadata, scene_source
 
 DEFAULT_SECONDS = 20.0
 TRACKERS = ("tofcut", "baseline")
@@ -61,7 +61,7 @@ def _tofcut(capture: Path, tracks: Path, masks: Path) -> list[str]:
 
 
 def _baseline(capture: Path, tracks: Path, masks: Path) -> list[str]:
-    return [sys.executable, "-m", "tofcut.tools.baseline", str(capture),
+    return [sys.executable, "-m", "tofcut.tools.evaluation.baseline", str(capture),
             "--tracks-out", str(tracks), "--masks-out", str(masks)]  # fmt: skip
 
 

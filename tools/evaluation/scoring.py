@@ -40,7 +40,7 @@ from tofcut.driver.calibration import pixel_rays
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import CaptureError
 from tofcut.sim.truth import FrameTruth, load_truth, truth_path
-from tofcut.tools.sources import SourceError
+from tofcut.tools.pipeline.sources import SourceError
 
 VISITS = 1000
 """Object ids in the scores are object × VISITS + visit (see the module's docstring)."""

@@ -21,10 +21,10 @@ from tofcut.driver.frames import Frame
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.truth import FrameTruth
-from tofcut.tracker import energy as en
-from tofcut.tracker.energy import energy_of
-from tofcut.tracker.graphcut import Problem, solve_cropped
-from tofcut.tracker.segment import (
+from tofcut.tracker.paper import energy as en
+from tofcut.tracker.paper.energy import energy_of
+from tofcut.tracker.paper.graphcut import Problem, solve_cropped
+from tofcut.tracker.paper.segment import (
     Energy,
     SegmentParams,
     Target,
@@ -555,7 +555,7 @@ def write_report(out: Path, figures: Sequence[FigureResult], seeds: Sequence[int
         "",
         f"`{base}`",
         "",
-        "µt, µb, σs and σi are estimated from each frame (see `tofcut.tracker.segment`). "
+        "µt, µb, σs and σi are estimated from each frame (see `tofcut.tracker.paper.segment`). "
         "In the panels white is target found, red is found but not target, blue is target "
         "missed.",
         "",

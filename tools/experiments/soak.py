@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 from tofcut.driver.frames import RawFrame
 from tofcut.driver.stream import Gap, StreamStats
-from tofcut.tools.losses import format_ranges
+from tofcut.tools.pipeline.losses import format_ranges
 
 HOST_OVERFLOW = "no fault: the camera's FIFO overflowed (host read too slowly)"
 UNEXPLAINED = "no fault: unexplained"

@@ -12,7 +12,7 @@ a given one. The speed comes with the winning geometry; where it has none (a map
 one), it is taken from the next source that has one and runs the same way. Two sources that
 disagree by more than `ANGLE_TOLERANCE_DEG` or `OFFSET_TOLERANCE_M` are reported, one
 warning line for each, never silently resolved. The velocity prior is chosen later
-(`tools.run_belt`): the conveyor's encoder when linked, else the known speed, else none.
+(`tools.pipeline.run_belt`): the conveyor's encoder when linked, else the known speed, else none.
 """
 
 from __future__ import annotations
@@ -28,11 +28,11 @@ from typing import Any
 import numpy as np
 
 from tofcut.driver.belt import KnownBelt
-from tofcut.driver.belt_log import SOURCES
 from tofcut.driver.capture import CaptureReader
-from tofcut.driver.conveyor_map import load_conveyor_config
+from tofcut.driver.conveyor.belt_log import SOURCES
+from tofcut.driver.conveyor.config import load_conveyor_config
 from tofcut.driver.errors import ConfigError
-from tofcut.tools.sources import Opened, SourceError, belt_of
+from tofcut.tools.pipeline.sources import Opened, SourceError, belt_of
 
 ANGLE_TOLERANCE_DEG = 3.0
 """Directions or normals further apart than this are two different belts."""

@@ -1,13 +1,13 @@
 """The conveyor options of `tofcut live`, `track`, `record` and `soak`, and the link they
 open: the controller (real, or emulated on a pseudo-terminal), the belt readings, and the
-reject rule. The belt's geometry is the run's, resolved once (`tools.belt_source`).
+reject rule. The belt's geometry is the run's, resolved once (`tools.pipeline.belt_source`).
 
     add_conveyor_options(parser)
     ...
     line = open_conveyor(args, opened)      # None without --conveyor / --conveyor-emulator
     with line or contextlib.nullcontext():
         for frame in camera.frames():
-            prior = line.velocity_prior(frame)  # for the tracker (or tools.run_belt.RunBelt)
+            prior = line.velocity_prior(frame)  # for the tracker (or pipeline.run_belt.RunBelt)
             tracked = ...
             line.observe(tracked)               # rejects
 """
@@ -25,27 +25,27 @@ import numpy as np
 import rerun as rr
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
-from tofcut.driver.conveyor import ConveyorClient, Listener
-from tofcut.driver.conveyor_map import ConveyorConfig, load_conveyor_config
+from tofcut.driver.conveyor.config import ConveyorConfig, load_conveyor_config
+from tofcut.driver.conveyor.exposure_clock import ExposureClock
+from tofcut.driver.conveyor.link import ConveyorClient, Listener
+from tofcut.driver.conveyor.reject_rule import RejectRule
+from tofcut.driver.conveyor.rejects import RejectEvent, RejectScheduler
 from tofcut.driver.errors import ConfigError
-from tofcut.driver.exposure_clock import ExposureClock
 from tofcut.driver.frames import Frame
 from tofcut.sim.conveyor import EmulatedConveyor, for_scene
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene import Scene
-from tofcut.tools.belt_source import (
+from tofcut.tools.pipeline.belt_source import (
     BeltResolution,
     NoBelt,
     map_candidate,
     resolve_belt,
     resolve_run_belt,
 )
-from tofcut.tools.sources import Opened
+from tofcut.tools.pipeline.sources import Opened
 from tofcut.tracker.belt_prior import VelocityPrior, belt_velocity_prior
-from tofcut.tracker.reject_rule import RejectRule
-from tofcut.tracker.rejects import RejectEvent, RejectScheduler
 from tofcut.tracker.tracks import TrackedFrame
 
 EMULATOR_SPEED_MPS = 0.25

@@ -63,3 +63,13 @@ def describe_losses(stats: StreamStats) -> list[str]:
         ranges = format_ranges(stats.gaps, stats.estimated_gaps, RANGES_SHOWN)
         lines.append(f"lost sequence numbers{more}: {ranges}")
     return lines
+
+
+def stats_summary(stats: StreamStats) -> str:
+    """One line of a stream's counts and its last lost sequence numbers: what `record` and
+    `convert` say when they are done."""
+    text = f"{stats.frames} frames, {stats.lost} lost, {stats.damaged} damaged"
+    if stats.gaps:
+        ranges = ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in list(stats.gaps)[-5:])
+        text += f" (lost sequence numbers: {ranges})"
+    return text

@@ -30,7 +30,7 @@ from rerun.components import (
 
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.frames import Frame
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
 
 APP_ID = "tofcut"

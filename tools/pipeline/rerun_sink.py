@@ -42,9 +42,9 @@ import rerun as rr
 
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.errors import TofcutError
-from tofcut.tools.rerun_log import APP_ID, FrameLogger, FrameRow, default_blueprint
-from tofcut.tools.rerun_target import BlueprintSource, RerunTarget, target_from_args
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.pipeline.rerun_log import APP_ID, FrameLogger, FrameRow, default_blueprint
+from tofcut.tools.pipeline.rerun_target import BlueprintSource, RerunTarget, target_from_args
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
 
 LIVE_QUEUE_FRAMES = 8

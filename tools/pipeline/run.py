@@ -25,8 +25,8 @@ from tofcut.driver.errors import TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
-from tofcut.tools.latency import LatencyHistogram
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.pipeline.latency import LatencyHistogram
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.tracker import Tracker
 from tofcut.tracker.tracks import TrackedFrame

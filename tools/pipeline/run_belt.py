@@ -19,16 +19,16 @@ from collections.abc import Callable
 from typing import Protocol
 
 from tofcut.driver.belt import BeltReading, KnownBelt
-from tofcut.driver.belt_log import BeltLogWriter, ReplayedLink
+from tofcut.driver.conveyor.belt_log import BeltLogWriter, ReplayedLink
 from tofcut.driver.frames import Frame
-from tofcut.tools.belt_source import (
+from tofcut.tools.pipeline.belt_source import (
     BeltResolution,
     conflict_warning,
     describe_belt,
     rank,
     warn,
 )
-from tofcut.tools.conveyor_options import ConveyorLine
+from tofcut.tools.pipeline.conveyor_line import ConveyorLine
 from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior, belt_velocity_prior, known_speed_prior
 from tofcut.tracker.tracker import Tracker
@@ -48,7 +48,7 @@ class RunBelt:
     `offer(belt)` hands over a belt that became known during the run (the belt finder's, or
     one a conveyor log recorded), from any thread; it is applied on the pipeline's thread at
     the next frame (`at_frame`), so one frame is tracked with one belt throughout. By the
-    precedence of `tools.belt_source`, a found belt replaces only a found one (or none): a
+    precedence of `tools.pipeline.belt_source`, a found belt replaces only a found one (or none): a
     belt the run was given stays, and a found one that disagrees with it is one warning line.
     Applying a belt sets the tracker's `belt`, the rejects' (`RejectScheduler.set_belt`),
     the direction of the link's prior, and appends it to the conveyor log when recording.

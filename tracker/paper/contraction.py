@@ -30,10 +30,10 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
+from tofcut._types import F64
 from tofcut.tracker.kernels import number_sets, root
+from tofcut.tracker.paper.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
 
-F64 = npt.NDArray[np.float64]
 BOOL = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 

@@ -23,7 +23,9 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64
+from tofcut.tracker.errors import SegmentError
+
 BOOL = npt.NDArray[np.bool_]
 
 OFFSETS: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (1, 1), (1, -1))
@@ -192,7 +194,7 @@ def range_weights(
     which `tofcut reproduce` compares.
     """
     if (grey is None) != (sigma_i is None):
-        raise ValueError("give both grey and sigma_i, or neither")
+        raise SegmentError("give both grey and sigma_i, or neither")
     # the exponents (−inf where there is no edge) compiled, their exp by numpy's vector loop
     exponents = _range_exponents(
         xyz,

@@ -1,4 +1,4 @@
-"""Minimising a binary energy (see `tofcut.tracker.energy`) by graph cut with PyMaxflow.
+"""Minimising a binary energy (see `tofcut.tracker.paper.energy`) by graph cut with PyMaxflow.
 
 Three solvers with the same minima:
 
@@ -8,7 +8,7 @@ Three solvers with the same minima:
   cost are fixed without a graph; only the rest go into it.
 - `solve_cropped`, for the §4.2 energies: the graph of a window around the seed, grown until
   a certificate shows that nothing outside it can change the minimum; inside the window,
-  neighbours that no minimum separates are merged first (`tofcut.tracker.contraction`), so
+  neighbours that no minimum separates are merged first (`tofcut.tracker.paper.contraction`), so
   the max-flow no longer pushes 1/n of flow into each pixel of a surface one at a time.
 
 Why `solve_reduced` is exact (persistency). Let δ_p = cost1[p] − cost0[p] and W_p the sum of
@@ -47,10 +47,11 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from tofcut.tracker.contraction import cut_merged, merged_nodes, min_cut
-from tofcut.tracker.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
+from tofcut._types import F64
+from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.paper.contraction import cut_merged, merged_nodes, min_cut
+from tofcut.tracker.paper.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
 
-F64 = npt.NDArray[np.float64]
 BOOL = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 
@@ -69,7 +70,8 @@ class Problem:
     cost0: F64
     """(H, W) cost of labelling the pixel background."""
     weights: F64
-    """(4, H, W) non-negative edge weights along `energy.OFFSETS` (see `tofcut.tracker.energy`)."""
+    """(4, H, W) non-negative edge weights along `energy.OFFSETS` (see
+    `tofcut.tracker.paper.energy`)."""
     weight_bound: float | None = None
     """An upper bound of every pixel's total edge weight W_p, when the energy knows one in
     closed form (Potts: `energy.potts_bound`); `solve_reduced` then reads only the unary
@@ -78,11 +80,11 @@ class Problem:
     def __post_init__(self) -> None:
         shape = self.cost1.shape
         if len(shape) != 2 or self.cost0.shape != shape:
-            raise ValueError(f"unary costs must be two equal (H, W) arrays, not {shape}")
+            raise SegmentError(f"unary costs must be two equal (H, W) arrays, not {shape}")
         if self.weights.shape != (len(OFFSETS), *shape):
-            raise ValueError(f"weights must be (4, H, W), not {self.weights.shape}")
+            raise SegmentError(f"weights must be (4, H, W), not {self.weights.shape}")
         if self.weight_bound is not None and not self.weight_bound >= 0.0:
-            raise ValueError(f"weight_bound must be ≥ 0, not {self.weight_bound!r}")
+            raise SegmentError(f"weight_bound must be ≥ 0, not {self.weight_bound!r}")
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -1,12 +1,12 @@
 """Segmenting one target in one frame: `segment(frame, target, energy, params)`.
 
-    from tofcut.tracker.segment import Energy, Target, segment
+    from tofcut.tracker.paper.segment import Energy, Target, segment
     seg = segment(frame, Target(pixel=(88, 60)), Energy.RANGE_SMOOTH)
     seg.mask, seg.energy, seg.seconds
 
-The energies are those of Arif et al. §4 (see `tofcut.tracker.energy` for the formulas and
+The energies are those of Arif et al. §4 (see `tofcut.tracker.paper.energy` for the formulas and
 units); the minimum is found by graph cut, by default with the fast exact solvers of
-`tofcut.tracker.graphcut`, or with the full-frame reference graph on request.
+`tofcut.tracker.paper.graphcut`, or with the full-frame reference graph on request.
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.frames import Frame
-from tofcut.tracker import energy as en
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
+from tofcut.tracker.paper import energy as en
+from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
 
-F64 = npt.NDArray[np.float64]
 BOOL = npt.NDArray[np.bool_]
 
 
@@ -80,7 +80,7 @@ class SegmentParams:
     """Parameters of the energies; None means "estimate from the frame and the target".
 
     Intensities are in the frame's own units (`Frame.intensity`); energies see them as grey
-    levels 255·I/I_ref (see `tofcut.tracker.energy`), which is the unit of the weights below.
+    levels 255·I/I_ref (see `tofcut.tracker.paper.energy`), which is the unit of the weights below.
     The defaults were set once for the emulator's scenes at 176×144 and are used unchanged for
     every scene.
     """

@@ -1,6 +1,6 @@
 """Several targets in one frame with disjoint masks: `segment_many(frame, targets, params)`.
 
-    from tofcut.tracker.segment_many import segment_many
+    from tofcut.tracker.paper.segment_many import segment_many
     many = segment_many(frame, [Target(point=a), Target(point=b)], energy=Energy.RANGE_DATA)
     many.labels  # (H, W): 0 background, k + 1 where targets[k] won the pixel
 
@@ -26,11 +26,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.frames import Frame
-from tofcut.tracker import energy as en
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.multicut import PottsProblem, solve_potts
-from tofcut.tracker.segment import (
+from tofcut.tracker.paper import energy as en
+from tofcut.tracker.paper.segment import (
     Energy,
     Model,
     SegmentParams,
@@ -114,7 +115,7 @@ def segment_many(
     )
 
 
-def _edges(weights: en.F64) -> tuple[I64, I64, en.F64]:
+def _edges(weights: F64) -> tuple[I64, I64, F64]:
     """The (4, H, W) weights as flat edge lists (i, j, weight), zero-weight edges left out."""
     _, h, w = weights.shape
     index = np.arange(h * w).reshape(h, w)
