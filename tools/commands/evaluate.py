@@ -4,7 +4,7 @@
 emulator's (`CAPTURE.truth.npz`, written by `tofcut record emulator:...`). Tracks are
 matched to objects two ways, by 3D centroid within `--gate` and by mask IoU of at least
 `--min-iou`, each scored for MOTA, IDF1 and ID switches; and the mask IoU of every scored
-object-frame is averaged (`tools.evaluation.scoring` says exactly what counts). The first line
+object-frame is averaged (`tofcut.tools.scoring` says exactly what counts). The first line
 printed is the centroid matching's, as it always was; the second adds the IoU matching's.
 
 `--per-object` adds, for every object, the view from its masks alone (no gate): in how many
@@ -12,7 +12,7 @@ of its frames a track held most of it, which tracks those were, and its mean mas
 that track over all its frames (0 where none held it): "kept one id in every frame".
 
 `tofcut evaluate --family NAME --seeds A-B` (or `--scene PATTERN --seeds A-B`) records,
-tracks and scores a line per seed (`tools.evaluation.family`): what a tracker does on lines it
+tracks and scores a line per seed (`tofcut.tools.family`): what a tracker does on lines it
 was not tuned on, beside a baseline.
 """
 
