@@ -55,7 +55,7 @@ def open(
     `frames()` and is a context manager; `seed` and `realtime` are the emulator's,
     `reconnect` a camera's (its stream outlives unplugs and stalls). A name that is none of
     these is a `TofcutError`."""
-    from tofcut.tools.sources import SourceSpec, open_source
+    from tofcut.tools.pipeline.sources import SourceSpec, open_source
 
     return open_source(
         SourceSpec.parse(source), seed=seed, realtime=realtime, reconnect=reconnect

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import KnownBelt
-from tofcut.driver.conveyor_map import load_conveyor_config, parse_conveyor_config
+from tofcut.driver.conveyor.config import load_conveyor_config, parse_conveyor_config
+from tofcut.driver.conveyor.toml_writer import dumps
 from tofcut.sim import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tools.cli import main
-from tofcut.tools.cmd_calibrate import CalibrationError, map_document
-from tofcut.tools.toml_writer import dumps
+from tofcut.tools.commands.calibrate import CalibrationError, map_document
 from tofcut.tracker.belt_finder import (
     BeltEstimate,
     BeltFinder,

@@ -20,10 +20,11 @@ import numpy as np
 import pytest
 
 from tofcut.driver.capture import CaptureReader
-from tofcut.tools import cli, cmd_ports, cmd_track
+from tofcut.tools import cli
 from tofcut.tools.cli import main
-from tofcut.tools.pipeline import MasksWriter
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.commands import ports, tracking
+from tofcut.tools.pipeline.run import MasksWriter
+from tofcut.tools.pipeline.status import PipelineStatus
 
 REPO = Path(__file__).resolve().parent.parent
 HEAVY = ("motmetrics", "pandas", "rerun", "numba", "scipy", "maxflow", "tofcut.tracker.tracker")
@@ -159,7 +160,7 @@ def test_an_unexpected_error_is_one_line_unless_debug(capsys, monkeypatch):
     def broken(args):
         raise RuntimeError("something inside broke")
 
-    monkeypatch.setattr(cmd_ports, "run", broken)
+    monkeypatch.setattr(ports, "run", broken)
     line = one_line_failure(capsys, ["ports"])
     assert "RuntimeError: something inside broke" in line
     assert "--debug" in line
@@ -232,8 +233,8 @@ def test_every_command_is_listed_with_its_own_help():
 
 def test_verbose_and_quiet_set_the_logs_of_tofcut_and_its_libraries(capsys, monkeypatch):
     def chatty(args):
-        logging.getLogger("tofcut.driver.conveyor").info("a note")
-        logging.getLogger("tofcut.driver.conveyor").warning("a warning")
+        logging.getLogger("tofcut.driver.conveyor.link").info("a note")
+        logging.getLogger("tofcut.driver.conveyor.link").warning("a warning")
         from pymodbus.client import ModbusSerialClient  # its own chatter, through logging
 
         client = ModbusSerialClient("/dev/no-such-port-for-tofcut")
@@ -241,7 +242,7 @@ def test_verbose_and_quiet_set_the_logs_of_tofcut_and_its_libraries(capsys, monk
         client.close()
         return 0
 
-    monkeypatch.setattr(cmd_ports, "run", chatty)
+    monkeypatch.setattr(ports, "run", chatty)
     assert main(["ports"]) == 0
     assert capsys.readouterr().err.splitlines() == ["tofcut: warning: a warning"]
     assert main(["-q", "ports"]) == 0
@@ -310,14 +311,14 @@ def test_headless_with_save_writes_the_file(capsys, capture, tmp_path):
 def test_ctrl_c_on_track_prints_the_closing_lines(capsys, capture, tmp_path, monkeypatch):
     frames = []
 
-    class InterruptedTracker(cmd_track.Tracker):
+    class InterruptedTracker(tracking.Tracker):
         def update(self, frame, belt=None):
             frames.append(frame)
             if len(frames) == 2:
                 os.kill(os.getpid(), signal.SIGINT)  # the user presses Ctrl-C
             return super().update(frame, belt)
 
-    monkeypatch.setattr(cmd_track, "Tracker", InterruptedTracker)
+    monkeypatch.setattr(tracking, "Tracker", InterruptedTracker)
     tracks = tmp_path / "t.jsonl"
     code = main(["track", str(capture), "--headless", "--tracks-out", str(tracks)])
     assert code == 130

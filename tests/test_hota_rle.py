@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tofcut.tools.hota import FrameMatch, centroid_similarity, hota
-from tofcut.tools.mot import parse_row
-from tofcut.tools.mots import decode, encode, parse_line
+from tofcut.tools.evaluation.hota import FrameMatch, centroid_similarity, hota
+from tofcut.tools.pipeline.mot import parse_row
+from tofcut.tools.pipeline.mots import decode, encode, parse_line
 
 # --- COCO RLE ----------------------------------------------------------------------------------
 

@@ -16,7 +16,7 @@ from tofcut.driver.capture import CaptureReader, CaptureWriter
 from tofcut.sim.truth import load_truth, truth_path
 from tofcut.tools import pipeline
 from tofcut.tools.cli import main
-from tofcut.tools.mots import decode, encode, read_mots
+from tofcut.tools.pipeline.mots import decode, encode, read_mots
 
 FRAMES = 40
 

@@ -18,11 +18,11 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 
 NOISE_SHARE = 0.7

@@ -32,11 +32,11 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
 from tofcut.tracker.noise import range_noise
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 

@@ -17,7 +17,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64
+
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 

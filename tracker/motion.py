@@ -12,11 +12,9 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.tracker.belt_prior import VelocityPrior
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

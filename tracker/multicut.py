@@ -15,9 +15,9 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.tracker.kernels import cheapest_where, expansion_terms, moving_graph, settled
 
-F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 

@@ -32,6 +32,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels, stats
@@ -50,7 +51,6 @@ from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 from tofcut.tracker.tracks import Track, TrackedFrame
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 I32 = npt.NDArray[np.int32]
