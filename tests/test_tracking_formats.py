@@ -14,8 +14,8 @@ import trackeval
 from tofcut.driver.calibration import pixel_rays
 from tofcut.driver.capture import CaptureReader, CaptureWriter
 from tofcut.sim.truth import load_truth, truth_path
-from tofcut.tools import pipeline
 from tofcut.tools.cli import main
+from tofcut.tools.pipeline import run as pipeline
 from tofcut.tools.pipeline.mots import decode, encode, read_mots
 
 FRAMES = 40

@@ -29,10 +29,12 @@ import argparse
 import json
 from typing import Any
 
-from tofcut.tools.commands.arguments import capture_file, existing_file, output_file
+from tofcut.tools.commands.arguments import UsageError, capture_file, existing_file, output_file
 from tofcut.tools.evaluation import evaluate_files, family
 from tofcut.tools.evaluation.run_scores import per_object
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, evaluate, read_run
+from tofcut.tools.pipeline.mot import read_mot
+from tofcut.tools.pipeline.mots import read_mots
 from tofcut.tools.pipeline.sources import SourceError
 
 
@@ -71,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             raise SourceError("give either CAPTURE --tracks --masks, or --family/--scene, not both")
         return family.run(args)
     if args.truth is not None:
-        return evaluate_files.run(args)
+        return _against_file(args)
     if args.capture is None or args.tracks is None or args.masks is None:
         raise SourceError(
             "evaluate needs CAPTURE --tracks FILE.jsonl --masks FILE.npz "
@@ -113,5 +115,49 @@ def run(args: argparse.Namespace) -> int:
             **scores.to_json(), "gate": args.gate, "min_pixels": args.min_pixels,
             "min_iou": args.min_iou, **({"per_object": objects} if args.per_object else {}),
         }  # fmt: skip
+        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    return 0
+
+
+def _against_file(args: argparse.Namespace) -> int:
+    """`tofcut evaluate --truth FILE (--tracks FILE | --masks FILE)`: print the scores."""
+    if args.capture is not None or args.per_object:
+        raise UsageError("--truth scores the run against that file: give no CAPTURE and no "
+                          "--per-object (those are for the emulator's own truth)")  # fmt: skip
+    if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0:
+        raise UsageError("--min-iou must be in (0, 1] and --gate > 0")
+    kind = evaluate_files.truth_format(args.truth)
+    if kind == evaluate_files.MOT:
+        if args.tracks is None:
+            raise UsageError(
+                f"{args.truth} is MOTChallenge rows, matched by 3D centroid: give the run's "
+                "tracks, --tracks FILE.jsonl (or its --mot-out)"
+            )
+        truth_rows = read_mot(args.truth)
+        positions = evaluate_files.track_positions(args.tracks)
+        scores = evaluate_files.score_centroids(args.truth, truth_rows, positions, args.gate)
+        how = f"by 3D centroid within {args.gate:g} m"
+    else:
+        if args.masks is None:
+            raise UsageError(f"{args.truth} is MOTS lines, matched by mask IoU: give the run's "
+                              "masks, --masks FILE.npz (or its --mots-out)")  # fmt: skip
+        truth = read_mots(args.truth)
+        masks, size = evaluate_files.track_masks(args.masks)
+        if truth and size is not None and size != (truth[0].height, truth[0].width):
+            raise SourceError(f"{args.masks}: masks of {size[0]}x{size[1]} (height x width), "
+                              f"the truth's are {truth[0].height}x{truth[0].width}")  # fmt: skip
+        scores = evaluate_files.score_masks(args.truth, truth, masks, args.min_iou)
+        how = f"by mask IoU >= {args.min_iou:g}"
+    m = scores.matching
+    print(f"{args.truth} ({kind}): {scores.frames} frames, {m.objects} object-frames, "
+          f"matched {how}")  # fmt: skip
+    print(
+        f"MOTA {m.mota:.3f}  IDF1 {m.idf1:.3f}  HOTA {m.hota.hota:.3f} (DetA {m.hota.deta:.3f}, "
+        f"AssA {m.hota.assa:.3f})  ID switches {m.id_switches}  (misses {m.misses}, "
+        f"false positives {m.false_positives})"
+    )
+    if args.json:
+        doc = {"truth": str(args.truth), **scores.to_json(), "gate": args.gate,
+               "min_iou": args.min_iou}  # fmt: skip
         args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
     return 0

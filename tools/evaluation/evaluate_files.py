@@ -22,7 +22,6 @@ TrackEval (HOTA, DetA, AssA: `tofcut.tools.evaluation.hota`).
 
 from __future__ import annotations
 
-import argparse
 import json
 from collections import defaultdict
 from collections.abc import Iterable
@@ -36,7 +35,6 @@ import numpy.typing as npt
 from pycocotools import mask as coco_mask
 from scipy.optimize import linear_sum_assignment
 
-from tofcut.tools.commands.arguments import UsageError
 from tofcut.tools.evaluation.hota import FrameMatch, centroid_similarity, mask_similarity
 from tofcut.tools.evaluation.scoring import Matching, summary
 from tofcut.tools.pipeline.mot import MotRow, parse_row, read_mot
@@ -225,46 +223,3 @@ def score_masks(path: Path, truth: list[MotsObject], tracks: Masks, min_iou: flo
         acc.update(ids, hyp_ids, np.where(sim >= min_iou, 1.0 - sim, np.nan), frameid=f)
         matches.append(FrameMatch(ids, hyp_ids, sim))
     return TruthScores(MOTS, len(frames), summary(acc, matches))
-
-
-def run(args: argparse.Namespace) -> int:
-    """`tofcut evaluate --truth FILE (--tracks FILE | --masks FILE)`: print the scores."""
-    if args.capture is not None or args.per_object:
-        raise UsageError("--truth scores the run against that file: give no CAPTURE and no "
-                          "--per-object (those are for the emulator's own truth)")  # fmt: skip
-    if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0:
-        raise UsageError("--min-iou must be in (0, 1] and --gate > 0")
-    kind = truth_format(args.truth)
-    if kind == MOT:
-        if args.tracks is None:
-            raise UsageError(
-                f"{args.truth} is MOTChallenge rows, matched by 3D centroid: give the run's "
-                "tracks, --tracks FILE.jsonl (or its --mot-out)"
-            )
-        scores = score_centroids(args.truth, read_mot(args.truth), track_positions(args.tracks),
-                                 args.gate)  # fmt: skip
-        how = f"by 3D centroid within {args.gate:g} m"
-    else:
-        if args.masks is None:
-            raise UsageError(f"{args.truth} is MOTS lines, matched by mask IoU: give the run's "
-                              "masks, --masks FILE.npz (or its --mots-out)")  # fmt: skip
-        truth = read_mots(args.truth)
-        masks, size = track_masks(args.masks)
-        if truth and size is not None and size != (truth[0].height, truth[0].width):
-            raise SourceError(f"{args.masks}: masks of {size[0]}x{size[1]} (height x width), "
-                              f"the truth's are {truth[0].height}x{truth[0].width}")  # fmt: skip
-        scores = score_masks(args.truth, truth, masks, args.min_iou)
-        how = f"by mask IoU >= {args.min_iou:g}"
-    m = scores.matching
-    print(f"{args.truth} ({kind}): {scores.frames} frames, {m.objects} object-frames, "
-          f"matched {how}")  # fmt: skip
-    print(
-        f"MOTA {m.mota:.3f}  IDF1 {m.idf1:.3f}  HOTA {m.hota.hota:.3f} (DetA {m.hota.deta:.3f}, "
-        f"AssA {m.hota.assa:.3f})  ID switches {m.id_switches}  (misses {m.misses}, "
-        f"false positives {m.false_positives})"
-    )
-    if args.json:
-        doc = {"truth": str(args.truth), **scores.to_json(), "gate": args.gate,
-               "min_iou": args.min_iou}  # fmt: skip
-        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return 0
