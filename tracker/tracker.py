@@ -365,6 +365,8 @@ class Tracker:
             # belt goes under it, once the scenery and the belt are both known
             self.background.clear_belt(frame, self.belt)
             self._belt_laid = True
+        if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
+            self.background.hold_belt(frame, self.belt, noise)
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
 

@@ -165,16 +165,17 @@ class RunBelt:
 
     def find(self, finder: BeltFinder) -> None:
         """Look for the belt in the run's own frames (where nothing gave one): the finder's
-        plane is offered as soon as it has one, again once it knows the travel, and once
-        more when it is done; `describe_found` says how well it fits."""
+        plane is offered as soon as it has one, again once it knows the travel, again when it
+        moves the plane to the layer things are seen to move over, and once more when it is
+        done; `describe_found` says how well it fits."""
         self._found_by = finder
-        offered: list[tuple[bool, bool]] = []
+        offered: list[tuple[bool, bool, int]] = []
 
         def found(frame: Frame) -> KnownBelt | None:
             belt = finder.update(frame).belt
             if belt is None:
                 return None
-            state = (belt.speed_mps is not None, finder.done)
+            state = (belt.speed_mps is not None, finder.done, finder.moves)
             if offered and offered[-1] == state:
                 return None
             offered.append(state)
