@@ -22,6 +22,7 @@ from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels
+from tofcut.tracker.errors import SegmentError
 
 B = npt.NDArray[np.bool_]
 
@@ -90,15 +91,15 @@ class BackgroundParams:
 
     def __post_init__(self) -> None:
         if self.reveal_frames < 1:
-            raise ValueError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
+            raise SegmentError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
         if self.learn_frames < 1:
-            raise ValueError(f"learn_frames must be at least 1, got {self.learn_frames}")
+            raise SegmentError(f"learn_frames must be at least 1, got {self.learn_frames}")
         if not 0.0 < self.rate <= 1.0:
-            raise ValueError(f"rate must be in (0, 1], got {self.rate}")
+            raise SegmentError(f"rate must be in (0, 1], got {self.rate}")
         if self.min_height_sigmas <= 0:
-            raise ValueError(f"min_height_sigmas must be > 0, got {self.min_height_sigmas}")
+            raise SegmentError(f"min_height_sigmas must be > 0, got {self.min_height_sigmas}")
         if self.min_sigma_m <= 0 or self.noise_factor <= 0 or self.min_height_m < 0:
-            raise ValueError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
+            raise SegmentError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
 
 
 class BackgroundModel:

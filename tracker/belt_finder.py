@@ -42,6 +42,7 @@ from tofcut.tracker.belt_sweep import (
     choose_swept,
     swept_layers,
 )
+from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.noise import range_noise
 
 F32 = npt.NDArray[np.float32]
@@ -148,14 +149,14 @@ class FinderParams:
 
     def __post_init__(self) -> None:
         if self.plane_frames < 1 or self.ransac_tries < 1 or self.ransac_points < 3:
-            raise ValueError("plane_frames >= 1, ransac_tries >= 1, ransac_points >= 3")
+            raise SegmentError("plane_frames >= 1, ransac_tries >= 1, ransac_points >= 3")
         if self.edges_every < 1 or self.top_grow < 0 or self.min_top_pixels < 1:
-            raise ValueError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
+            raise SegmentError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
         if not 0 < self.top_tilt_deg < 90:
-            raise ValueError("top_tilt_deg must be in (0, 90)")
+            raise SegmentError("top_tilt_deg must be in (0, 90)")
         shares = (self.min_layer_share, self.island_share, self.min_support_share)
         if not all(0 < x < 1 for x in shares):
-            raise ValueError("min_layer_share, island_share, min_support_share: in (0, 1)")
+            raise SegmentError("min_layer_share, island_share, min_support_share: in (0, 1)")
         positive = (
             self.layer_bin_m, self.min_band_m, self.max_band_m, self.max_sigma_m, self.drop_m,
             self.min_span_m, self.top_reach_m, self.top_below_m, self.top_height_m,
@@ -165,9 +166,9 @@ class FinderParams:
             self.give_up_s, self.min_shift_m, self.max_spread_deg, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
-            raise ValueError("lengths, speeds, times and shares must be positive numbers")
+            raise SegmentError("lengths, speeds, times and shares must be positive numbers")
         if self.done_s < self.settle_s or self.max_speed_mps <= self.min_speed_mps:
-            raise ValueError("done_s >= settle_s and max_speed_mps > min_speed_mps")
+            raise SegmentError("done_s >= settle_s and max_speed_mps > min_speed_mps")
 
 
 @dataclass(frozen=True, eq=False)
@@ -370,14 +371,14 @@ def dominant_normal(points: F64, sigma: F64, tries: int, seed: int = 0) -> F64:
     only. Refitted on the largest pile. Pointing to the camera."""
     rng = np.random.default_rng(seed)
     if len(points) < 3:
-        raise ValueError("a plane needs three points")
+        raise SegmentError("a plane needs three points")
     picks = rng.integers(0, len(points), (tries, 3))
     a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
     normals = np.cross(b - a, c - a)
     lengths = np.linalg.norm(normals, axis=1)
     good = lengths > 1e-9
     if not good.any():
-        raise ValueError("the points are all on one line")
+        raise SegmentError("the points are all on one line")
     normals = normals[good] / lengths[good, None]
     step = max(1, len(points) // SCORE_POINTS)
     scored, weight = points[::step], 1.0 / sigma[::step]
@@ -618,7 +619,7 @@ def plane_basis(normal: F64) -> tuple[F64, F64]:
         if length > 0.1:
             e1 = e1 / length
             return e1, np.cross(normal, e1)
-    raise ValueError("no plane axis")  # unreachable for a unit normal
+    raise SegmentError("no plane axis")  # unreachable for a unit normal
 
 
 def long_axis(uv: F64) -> F64:

@@ -24,6 +24,7 @@ import numpy.typing as npt
 
 from tofcut._types import F64
 from tofcut.tracker import kernels
+from tofcut.tracker.errors import SegmentError
 
 F32 = npt.NDArray[np.float32]
 B = npt.NDArray[np.bool_]
@@ -60,11 +61,11 @@ class SweepParams:
     def __post_init__(self) -> None:
         times = (self.every_s, self.window_s, self.first_s, self.judge_every_s, self.apart_m)
         if not all(x > 0 for x in (*times, self.above_m)):
-            raise ValueError("sweep times and lengths must be positive")
+            raise SegmentError("sweep times and lengths must be positive")
         if not (0 < self.min_share < 1 and 0 < self.nearer_share <= 1):
-            raise ValueError("min_share in (0, 1) and nearer_share in (0, 1]")
+            raise SegmentError("min_share in (0, 1) and nearer_share in (0, 1]")
         if self.max_pixels < 1 or self.min_times < 1:
-            raise ValueError("max_pixels >= 1 and min_times >= 1")
+            raise SegmentError("max_pixels >= 1 and min_times >= 1")
 
 
 @dataclass(frozen=True)

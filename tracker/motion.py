@@ -15,6 +15,7 @@ import numpy as np
 
 from tofcut._types import F64
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.errors import SegmentError
 
 
 @dataclass(frozen=True)
@@ -30,7 +31,7 @@ class MotionParams:
 
     def __post_init__(self) -> None:
         if min(self.accel_sigma, self.measure_sigma_m, self.initial_speed_sigma) <= 0:
-            raise ValueError("motion noise levels must be positive")
+            raise SegmentError("motion noise levels must be positive")
 
 
 _POSITION = slice(0, 3)
