@@ -162,11 +162,10 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         args.source, realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
     )  # fmt: skip
-    device = opened.device
     try:
         return _track(args, live, opened, events)
     finally:
-        device.close()
+        opened.close()
 
 
 def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay) -> int:
