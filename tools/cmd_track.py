@@ -32,6 +32,7 @@ from tofcut.tools.arguments import (
 from tofcut.tools.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.conveyor_options import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.ctrl_c import CtrlC
+from tofcut.tools.keeping_up import PaceWatch
 from tofcut.tools.losses import describe_losses, event_level
 from tofcut.tools.options import add_camera_options, add_source_argument, config_from_args
 from tofcut.tools.pipeline import (
@@ -47,9 +48,10 @@ from tofcut.tools.pipeline import (
 )
 from tofcut.tools.progress import Progress
 from tofcut.tools.rerun_sink import NullSink, RerunSink
-from tofcut.tools.rerun_target import add_rerun_options, wait_while_serving
+from tofcut.tools.rerun_target import add_rerun_options, check_viewer, wait_while_serving
 from tofcut.tools.run_belt import RunBelt
 from tofcut.tools.sources import Opened, SourceError, open_source, scene_target
+from tofcut.tools.startup import current as startup
 from tofcut.tools.status import PipelineStatus
 from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -111,15 +113,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 class StatusLine:
-    """The live one-line status on stderr: fps, tracks, losses, latency."""
+    """The live one-line status on stderr: fps, tracks, losses, latency; and while the
+    tracker learns the empty scene, that it does."""
 
-    def __init__(self, progress: Progress) -> None:
+    def __init__(self, progress: Progress, tracker: Tracker | None = None) -> None:
         self._progress = progress
+        self._tracker = tracker
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        background = None if self._tracker is None else self._tracker.background
+        learning = "learning the scene  " if background is not None and not background.ready else ""
         self._progress.update(
             status.frames,
-            f"{status.fps:5.1f} fps  {status.tracks} tracks  {status.dropped} lost  "
+            f"{learning}{status.fps:5.1f} fps  {status.tracks} tracks  {status.dropped} lost  "
             f"latency {status.latency_s * 1e3:.1f} ms",
         )
 
@@ -157,11 +163,17 @@ class ConveyorOutput:
 
 def track(args: argparse.Namespace, *, live: bool) -> int:
     """Run the tracker on the source the arguments name."""
+    check_viewer(args)  # before anything slow: a viewer asked for must be there
     events = EventRelay()
-    opened = open_source(
-        args.source, realtime=not args.fast, seed=args.seed,
-        amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
-    )  # fmt: skip
+    what = {"emulator": "starting the emulated camera", "capture": "opening the capture"}
+    startup().step(what.get(args.source.kind, "opening the camera"))
+    try:
+        opened = open_source(
+            args.source, realtime=not args.fast, seed=args.seed,
+            amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
+        )  # fmt: skip
+    finally:
+        startup().done()
     try:
         return _track(args, live, opened, events)
     finally:
@@ -175,9 +187,16 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         raise SourceError("the conveyor options need a live camera, not a capture")
     resolution = resolve_run_belt(args, opened)
     belt = resolution.belt
-    tracker = Tracker(
-        TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
+    startup().step(
+        "loading the tracker",
+        slow="compiling the tracker (a first run only: it is cached after; about a minute)",
     )
+    try:
+        tracker = Tracker(
+            TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
+        )
+    finally:
+        startup().done()
     targets = list(args.target_pixel)
     if args.scene_target:
         seed = scene_target(meta)
@@ -353,8 +372,15 @@ def _run(
         f"camera {device.serial} ({args.source}): {device.config.describe()}",
         file=sys.stderr if args.stdout else sys.stdout,
     )
-    outputs.append(StatusLine(Progress(None, "live")))
+    outputs.append(StatusLine(Progress(None, "live"), tracker))
     feed = LiveFeed(device).start()
+    rate = device.config.frame_rate
+    outputs.append(
+        PaceWatch(
+            lambda: device.stats, lambda: feed.dropped, time.monotonic, rate,
+            emulated=args.source.kind == "emulator",
+        )
+    )  # fmt: skip
     try:
         return run(
             feed, device.demodulate, tracker, outputs, stats=lambda: device.stats,
