@@ -189,7 +189,7 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
     belt = resolution.belt
     startup().step(
         "loading the tracker",
-        slow="compiling the tracker (a first run only: it is cached after; about a minute)",
+        slow="compiling the tracker (a first run only: it is cached after)",
     )
     try:
         tracker = Tracker(
