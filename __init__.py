@@ -56,7 +56,7 @@ def open(
     `reconnect` a camera's (its stream outlives unplugs and stalls). A real-time emulator
     runs in a process of its own (`tofcut.sim.process.EmulatorProcess`), which ends when the
     camera is collected or Python exits. A name that is none of these is a `TofcutError`."""
-    from tofcut.tools.sources import SourceSpec, open_source
+    from tofcut.tools.pipeline.sources import SourceSpec, open_source
 
     return open_source(
         SourceSpec.parse(source), seed=seed, realtime=realtime, reconnect=reconnect

@@ -1,7 +1,10 @@
-"""The camera driver: USB transport, wire protocol, demodulation and captures.
+"""The hardware a run talks to: the camera (USB transport, wire protocol, demodulation and
+captures) and the conveyor (`driver.conveyor`: its Modbus link, map, exposure clock, log and
+reject rules), with the values both share (`belt`, `frames`, `errors`).
 
-Layers, bottom up: `transport` (pyusb) → `protocol` (bytes) → `stream` (frames from bytes)
-→ `demod` (taps to range and points) → `camera` / `capture` (the things you open).
+The camera's layers, bottom up: `transport` (pyusb) → `protocol` (bytes) → `stream` (frames
+from bytes) → `demod` (taps to range and points) → `camera` / `capture` (the things you
+open). The driver imports nothing of the emulator, the tracker or the tools.
 """
 
 from tofcut.driver.calibration import Calibration, parse_calibration, pixel_rays

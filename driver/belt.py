@@ -16,9 +16,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.errors import ConfigError
-
-F64 = npt.NDArray[np.float64]
 
 MAX_BELT_SPEED_MPS = 10.0
 """No conveyor runs faster than this; a larger speed is damage, not a reading."""

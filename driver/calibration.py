@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.errors import ProtocolError
 from tofcut.driver.protocol import (
     CALIB_HEADER_SIZE,
@@ -20,8 +21,6 @@ from tofcut.driver.protocol import (
 _CALIB = struct.Struct("<4sHHHHB3x9ff4x")
 PHASE_OFFSET_UNIT = 1e-4
 """Phase offsets are stored as i16 in units of 1e-4 rad."""
-
-F64Array = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,7 +58,7 @@ class Calibration:
         self.phase_offset_raw.flags.writeable = False
 
     @property
-    def phase_offset(self) -> F64Array:
+    def phase_offset(self) -> F64:
         """Per-pixel phase offsets in radians, (H, W)."""
         return self.phase_offset_raw.astype(np.float64) * PHASE_OFFSET_UNIT
 
@@ -130,7 +129,7 @@ def parse_calibration(
     return Calibration(w, h, mod_code, fx, fy, cx, cy, k1, k2, p1, p2, k3, offset, phase)
 
 
-def distort(calib: Calibration, xn: F64Array, yn: F64Array) -> tuple[F64Array, F64Array]:
+def distort(calib: Calibration, xn: F64, yn: F64) -> tuple[F64, F64]:
     """Brown–Conrady: normalised undistorted coordinates → normalised distorted ones."""
     k1, k2, p1, p2, k3 = calib.distortion
     r2 = xn * xn + yn * yn
@@ -141,8 +140,8 @@ def distort(calib: Calibration, xn: F64Array, yn: F64Array) -> tuple[F64Array, F
 
 
 def undistort(
-    calib: Calibration, xd: F64Array, yd: F64Array, tol: float = 1e-12, max_iter: int = 50
-) -> tuple[F64Array, F64Array]:
+    calib: Calibration, xd: F64, yd: F64, tol: float = 1e-12, max_iter: int = 50
+) -> tuple[F64, F64]:
     """Invert `distort` by Newton's method until every point moves by less than `tol`.
 
     Fixed-point iteration (OpenCV's way) stops tens of micrometres short in the corners;
@@ -174,7 +173,7 @@ def undistort(
     raise ProtocolError("lens model does not invert: the distortion coefficients are implausible")
 
 
-def pixel_rays(calib: Calibration) -> F64Array:
+def pixel_rays(calib: Calibration) -> F64:
     """Unit ray direction of every pixel centre, (H, W, 3), camera frame x right, y down, z fwd."""
     v, u = np.mgrid[0 : calib.height, 0 : calib.width].astype(np.float64)
     xn, yn = undistort(calib, (u - calib.cx) / calib.fx, (v - calib.cy) / calib.fy)
@@ -183,7 +182,7 @@ def pixel_rays(calib: Calibration) -> F64Array:
     return rays
 
 
-def project(calib: Calibration, points: F64Array) -> F64Array:
+def project(calib: Calibration, points: F64) -> F64:
     """Camera-frame points (..., 3) → pixel coordinates (..., 2) through the lens model."""
     z = points[..., 2]
     xd, yd = distort(calib, points[..., 0] / z, points[..., 1] / z)

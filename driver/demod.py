@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.calibration import Calibration, pixel_rays
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.protocol import MAX_COUNT, SPEED_OF_LIGHT, mod_freq_hz
 
 TWO_PI = 2.0 * math.pi
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True, eq=False)

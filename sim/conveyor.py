@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofcut.driver.belt import BeltGeometry
-from tofcut.driver.conveyor_map import RegisterMap
+from tofcut.driver.conveyor.config import RegisterMap
 from tofcut.sim.modbus_rtu import ExceptionCode, ModbusFault
 from tofcut.sim.scene import Scene
 

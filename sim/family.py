@@ -22,8 +22,8 @@ from functools import cache
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.protocol import MAX_FPS, MAX_INTEGRATION, MOD_FREQ_MHZ, TAPS
 from tofcut.sim.device import READOUT_US
 from tofcut.sim.geometry import look_at
@@ -31,8 +31,6 @@ from tofcut.sim.lens import LensSpec, make_calibration, rays_at
 from tofcut.sim.scene import Scene
 from tofcut.sim.scene_file import SceneError, parse_scene, scene_toml
 from tofcut.sim.sensor import SensorSpec
-
-F64 = npt.NDArray[np.float64]
 
 FAMILIES: tuple[str, ...] = ("conveyor",)
 """The families `draw_line` knows."""

@@ -10,11 +10,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.calibration import PHASE_OFFSET_UNIT, Calibration
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

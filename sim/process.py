@@ -16,7 +16,7 @@ The child is a fresh interpreter (`python -c`, as multiprocessing's spawn, but w
 importing the parent's `__main__`: the `tofcut` script would import the whole command line
 again). It talks over two socket pairs, one for control and one for the bulk pipe, so a bulk
 read waiting for a frame never holds up a control request (as on USB). A frame's bytes
-cross in a shared buffer (a memfd both map; `tofcut.sim.bench_transfer` measured it at half
+cross in a shared buffer (a memfd both map; `tofcut.tools.bench.transfer` measured it at half
 the parent's CPU time of the socket), read by read: the parent copies one read out before
 it asks for the next, so one buffer is enough.
 

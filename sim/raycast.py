@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.sim.geometry import Pose
 from tofcut.sim.shapes import Shape
 
-F64 = npt.NDArray[np.float64]
 I32 = npt.NDArray[np.int32]
 
 

@@ -18,6 +18,7 @@ from functools import cached_property
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.belt import KnownBelt
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.protocol import TAPS, mod_freq_hz
@@ -29,7 +30,6 @@ from tofcut.sim.sensor import active_signal, expose, phase_of, tap_means
 from tofcut.sim.source import Exposure, Rendered
 from tofcut.sim.truth import FrameTruth, ObjectTruth
 
-F64 = npt.NDArray[np.float64]
 THIN_PX = 2.5
 """A part thinner than this many pixels may slip between pixel centres: sample all its window."""
 

@@ -19,9 +19,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.protocol import MAX_COUNT, SPEED_OF_LIGHT
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -14,11 +14,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.sim.geometry import Pose
 
-F64 = npt.NDArray[np.float64]
 Hit = tuple[F64, F64]
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64
 
 
 @dataclass(frozen=True, eq=False)

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltReading, KnownBelt
-from tofcut.driver.belt_log import (
+from tofcut.driver.capture import CaptureReader
+from tofcut.driver.conveyor.belt_log import (
     PENDING_KEPT,
     BeltLogError,
     BeltLogReader,
@@ -22,10 +23,9 @@ from tofcut.driver.belt_log import (
     belt_log_path,
     parse_line,
 )
-from tofcut.driver.capture import CaptureReader
-from tofcut.tools import cmd_record, cmd_track
 from tofcut.tools.cli import main
-from tofcut.tools.sources import open_source
+from tofcut.tools.commands import record, tracking
+from tofcut.tools.pipeline.sources import open_source
 from tofcut.tracker.tracker import Tracker
 
 WAIT_S = 5.0
@@ -62,7 +62,7 @@ def spy(monkeypatch):
             seen.append((frame.sequence, prior))
             return super().update(frame, prior)
 
-    monkeypatch.setattr(cmd_track, "Tracker", SpyTracker)
+    monkeypatch.setattr(tracking, "Tracker", SpyTracker)
     return seen
 
 
@@ -100,9 +100,9 @@ def recorded(tmp_path_factory):
         lines.append(open_conveyor(*a, **k))
         return lines[-1]
 
-    open_conveyor = cmd_record.open_conveyor
-    mp.setattr(cmd_record, "open_source", opening)
-    mp.setattr(cmd_record, "open_conveyor", linking)
+    open_conveyor = record.open_conveyor
+    mp.setattr(record, "open_source", opening)
+    mp.setattr(record, "open_conveyor", linking)
     try:
         # in real time: a frame is exposed before it arrives, as from a real camera (on the
         # virtual clock of --fast, frames are stamped at the frame rate, whatever the time)

@@ -16,23 +16,23 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry, BeltReading, KnownBelt
+from tofcut.driver.conveyor.reject_rule import RejectRule
+from tofcut.driver.conveyor.rejects import RejectScheduler
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_server import PtyModbusServer
-from tofcut.tools import cmd_track
-from tofcut.tools.belt_source import (
+from tofcut.tools.cli import main
+from tofcut.tools.commands import tracking
+from tofcut.tools.pipeline.belt_source import (
     BeltCandidate,
     BeltResolution,
     disagreement,
     resolve_belt,
     resolve_run_belt,
 )
-from tofcut.tools.cli import main
-from tofcut.tools.conveyor_options import add_conveyor_options, open_conveyor
-from tofcut.tools.run_belt import RunBelt
-from tofcut.tools.sources import SourceSpec, open_source
-from tofcut.tracker.reject_rule import RejectRule
-from tofcut.tracker.rejects import RejectScheduler
+from tofcut.tools.pipeline.conveyor_line import add_conveyor_options, open_conveyor
+from tofcut.tools.pipeline.run_belt import RunBelt
+from tofcut.tools.pipeline.sources import SourceSpec, open_source
 from tofcut.tracker.tracker import Tracker
 
 SCENE_BELT = open_scene("conveyor").belt
@@ -106,7 +106,7 @@ def spy(monkeypatch):
             seen.append((frame.sequence, self.belt, prior))
             return super().update(frame, prior)
 
-    monkeypatch.setattr(cmd_track, "Tracker", SpyTracker)
+    monkeypatch.setattr(tracking, "Tracker", SpyTracker)
     return seen
 
 
@@ -278,7 +278,7 @@ def test_live_rejects_start_without_a_map_when_the_scene_knows_the_belt(
         lines.append(line)
         return line
 
-    monkeypatch.setattr(cmd_track, "open_conveyor", keep)
+    monkeypatch.setattr(tracking, "open_conveyor", keep)
     argv = ["live", "emulator:conveyor", "--fast", "--frames", "6", "--reject", "height > 0.5",
             "--diverter-distance", "1.0", "--save", str(tmp_path / "r.rrd")]  # fmt: skip
     if link == "emulator":
@@ -303,7 +303,7 @@ def test_the_maps_belt_reaches_the_rejects_too(tmp_path, capsys, monkeypatch, sp
         lines.append(open_conveyor(*a, **k))
         return lines[-1]
 
-    monkeypatch.setattr(cmd_track, "open_conveyor", keep)
+    monkeypatch.setattr(tracking, "open_conveyor", keep)
     line_map = write_map(tmp_path / "line.toml", moved(SCENE_BELT, "map", lift_m=0.02),
                          "diverter_m = 1.2\n")  # fmt: skip
     argv = ["live", "emulator:conveyor", "--fast", "--frames", "4", "--conveyor-emulator",
@@ -407,7 +407,7 @@ def test_the_pipeline_takes_a_belt_found_mid_run_without_restarting(
         def find(self, finder):
             self.finder = lambda f: found if f.sequence >= 3 else None
 
-    monkeypatch.setattr(cmd_track, "RunBelt", WithFinder)
+    monkeypatch.setattr(tracking, "RunBelt", WithFinder)
     assert main(["track", str(bare), "--frames", "6", "--save", str(tmp_path / "r.rrd")]) == 0
     assert [belt is None for _, belt, _ in spy] == [True, True, True, False, False, False]
     trackers_belts = [belt for _, belt, _ in spy[3:]]

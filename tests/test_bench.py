@@ -15,10 +15,10 @@ from tofcut.sim.crowd import MAX_BOXES, crowd_scene, crowd_source, resized
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene
-from tofcut.tools.bench_report import markdown, targets
-from tofcut.tools.bench_runner import STAGES, run_stage
-from tofcut.tools.bench_segment import INSTALL_HINT
-from tofcut.tools.bench_timing import fit_exponent, median_seconds, percentiles_ms
+from tofcut.tools.bench.report import markdown, targets
+from tofcut.tools.bench.runner import STAGES, run_stage
+from tofcut.tools.bench.segment import INSTALL_HINT
+from tofcut.tools.bench.timing import fit_exponent, median_seconds, percentiles_ms
 from tofcut.tools.cli import main
 
 

@@ -20,9 +20,11 @@ import numpy as np
 import pytest
 
 from tofcut.driver.capture import CaptureReader
-from tofcut.tools import cli, cmd_ports, cmd_track
+from tofcut.tools import cli
 from tofcut.tools.cli import main
-from tofcut.tools.pipeline import MasksWriter
+from tofcut.tools.commands import ports, tracking
+from tofcut.tools.pipeline.run import MasksWriter
+from tofcut.tools.pipeline.status import PipelineStatus
 
 REPO = Path(__file__).resolve().parent.parent
 HEAVY = ("motmetrics", "pandas", "rerun", "numba", "scipy", "maxflow", "tofcut.tracker.tracker")
@@ -94,6 +96,7 @@ def test_output_folders_are_checked_before_the_run(capsys, capture, tmp_path):
         ["convert", str(capture), "-o", f"{gone}/x.npz"],
         ["track", str(capture), "--tracks-out", f"{gone}/t.jsonl"],
         ["track", str(capture), "--masks-out", f"{gone}/m.npz"],
+        ["track", str(capture), "--mots-out", f"{gone}/m.txt"],
     ):
         line = usage_error(capsys, argv)
         assert "folder /nonexistent/out does not exist" in line, line
@@ -157,7 +160,7 @@ def test_an_unexpected_error_is_one_line_unless_debug(capsys, monkeypatch):
     def broken(args):
         raise RuntimeError("something inside broke")
 
-    monkeypatch.setattr(cmd_ports, "run", broken)
+    monkeypatch.setattr(ports, "run", broken)
     line = one_line_failure(capsys, ["ports"])
     assert "RuntimeError: something inside broke" in line
     assert "--debug" in line
@@ -182,10 +185,12 @@ def test_masks_are_written_whole_or_not_at_all(tmp_path):
     path = tmp_path / "m.npz"
     writer = MasksWriter(path)
     for seq in range(3):
-        writer.write(Tracked(seq), None)  # type: ignore[arg-type]
+        status = PipelineStatus(0.0, 0.0, seq + 1, 0, 0)
+        writer.write(Tracked(seq), status)  # type: ignore[arg-type]
     writer.close()
     with np.load(path) as z:
         assert z["seq"].tolist() == [0, 1, 2]
+        assert z["frame"].tolist() == [0, 1, 2]
         assert z["labels"].shape == (3, 4, 6)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]  # no partial file left
 
@@ -228,8 +233,8 @@ def test_every_command_is_listed_with_its_own_help():
 
 def test_verbose_and_quiet_set_the_logs_of_tofcut_and_its_libraries(capsys, monkeypatch):
     def chatty(args):
-        logging.getLogger("tofcut.driver.conveyor").info("a note")
-        logging.getLogger("tofcut.driver.conveyor").warning("a warning")
+        logging.getLogger("tofcut.driver.conveyor.link").info("a note")
+        logging.getLogger("tofcut.driver.conveyor.link").warning("a warning")
         from pymodbus.client import ModbusSerialClient  # its own chatter, through logging
 
         client = ModbusSerialClient("/dev/no-such-port-for-tofcut")
@@ -237,7 +242,7 @@ def test_verbose_and_quiet_set_the_logs_of_tofcut_and_its_libraries(capsys, monk
         client.close()
         return 0
 
-    monkeypatch.setattr(cmd_ports, "run", chatty)
+    monkeypatch.setattr(ports, "run", chatty)
     assert main(["ports"]) == 0
     assert capsys.readouterr().err.splitlines() == ["tofcut: warning: a warning"]
     assert main(["-q", "ports"]) == 0
@@ -306,14 +311,14 @@ def test_headless_with_save_writes_the_file(capsys, capture, tmp_path):
 def test_ctrl_c_on_track_prints_the_closing_lines(capsys, capture, tmp_path, monkeypatch):
     frames = []
 
-    class InterruptedTracker(cmd_track.Tracker):
+    class InterruptedTracker(tracking.Tracker):
         def update(self, frame, belt=None):
             frames.append(frame)
             if len(frames) == 2:
                 os.kill(os.getpid(), signal.SIGINT)  # the user presses Ctrl-C
             return super().update(frame, belt)
 
-    monkeypatch.setattr(cmd_track, "Tracker", InterruptedTracker)
+    monkeypatch.setattr(tracking, "Tracker", InterruptedTracker)
     tracks = tmp_path / "t.jsonl"
     code = main(["track", str(capture), "--headless", "--tracks-out", str(tracks)])
     assert code == 130

@@ -11,19 +11,19 @@ from rerun.chunk import RrdReader
 from serial.tools.list_ports_common import ListPortInfo
 
 from tofcut.driver.belt import BeltReading
+from tofcut.driver.conveyor.reject_rule import TrackMeasures
+from tofcut.driver.conveyor.rejects import RejectEvent
 from tofcut.driver.errors import ConfigError
 from tofcut.tools.cli import main
-from tofcut.tools.cmd_ports import describe_port
-from tofcut.tools.conveyor_options import (
+from tofcut.tools.commands.ports import describe_port
+from tofcut.tools.pipeline.conveyor_line import (
     add_conveyor_options,
     conveyor_config,
     log_reading,
     log_reject,
     open_conveyor,
 )
-from tofcut.tools.sources import SourceSpec, open_source
-from tofcut.tracker.reject_rule import TrackMeasures
-from tofcut.tracker.rejects import RejectEvent
+from tofcut.tools.pipeline.sources import SourceSpec, open_source
 from tofcut.tracker.tracks import Track
 
 WAIT_S = 5.0

@@ -23,8 +23,8 @@ from pymodbus.framer.rtu import FramerRTU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from tofcut.driver.conveyor import COMMANDS_KEPT, ConveyorClient
-from tofcut.driver.conveyor_map import LINK_RANGES, LinkSettings, RegisterMap
+from tofcut.driver.conveyor.config import LINK_RANGES, LinkSettings, RegisterMap
+from tofcut.driver.conveyor.link import COMMANDS_KEPT, ConveyorClient
 from tofcut.driver.errors import LinkError
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_rtu import crc16

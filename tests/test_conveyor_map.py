@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry, BeltHistory, BeltReading, unwrap_count
-from tofcut.driver.conveyor_map import (
+from tofcut.driver.conveyor.config import (
     LinkSettings,
     RegisterMap,
     load_conveyor_config,
     parse_conveyor_config,
 )
+from tofcut.driver.conveyor.exposure_clock import ExposureClock
 from tofcut.driver.errors import ConfigError
-from tofcut.driver.exposure_clock import ExposureClock
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.conveyor import belt_geometry
 

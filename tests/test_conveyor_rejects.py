@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
-from tofcut.driver.conveyor import ConveyorClient
-from tofcut.driver.conveyor_map import LinkSettings
+from tofcut.driver.conveyor.config import LinkSettings
+from tofcut.driver.conveyor.link import ConveyorClient
+from tofcut.driver.conveyor.reject_rule import MAX_NESTING, RejectRule, hull_area, measure_track
+from tofcut.driver.conveyor.rejects import CANDIDATES_KEPT, RejectScheduler
 from tofcut.driver.errors import ConfigError
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_server import PtyModbusServer
-from tofcut.tracker.reject_rule import MAX_NESTING, RejectRule, hull_area, measure_track
-from tofcut.tracker.rejects import CANDIDATES_KEPT, RejectScheduler
 from tofcut.tracker.tracks import Track
 
 WAIT_S = 5.0
@@ -206,7 +206,7 @@ def test_the_scheduler_fires_matching_objects_once_when_they_reach_the_diverter(
 
 
 def test_a_long_run_keeps_the_newest_rejects_and_counts_them_all(monkeypatch):
-    monkeypatch.setattr("tofcut.tracker.rejects.EVENTS_KEPT", 2)
+    monkeypatch.setattr("tofcut.driver.conveyor.rejects.EVENTS_KEPT", 2)
     objects = {i: (-0.1 - 0.15 * i, (0.08, 0.08, 0.12)) for i in range(1, 5)}
     scheduler = RejectScheduler(
         RejectRule.parse("height > 0.08"), BELT, 0.6, Belt(0.4).at, lambda e: None

@@ -11,11 +11,11 @@ import pytest
 
 from tofcut.driver.capture import CAMERA_KEYS, CaptureReader, bare_copy
 from tofcut.sim.truth import FrameTruth, ObjectTruth, load_truth
-from tofcut.tools import family
-from tofcut.tools.baseline import MIN_PIXELS, STEP_M, components
 from tofcut.tools.cli import main
-from tofcut.tools.family import parse_seeds
-from tofcut.tools.scoring import evaluate
+from tofcut.tools.evaluation import family
+from tofcut.tools.evaluation.baseline import MIN_PIXELS, STEP_M, components
+from tofcut.tools.evaluation.family import parse_seeds
+from tofcut.tools.evaluation.scoring import evaluate
 
 # --- bare captures ---------------------------------------------------------------------------
 

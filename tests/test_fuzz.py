@@ -29,8 +29,9 @@ import numpy as np
 import pytest
 
 from tofcut.driver.calibration import Calibration, pack_calibration, parse_calibration
-from tofcut.driver.conveyor import ConveyorClient
-from tofcut.driver.conveyor_map import LinkSettings, load_conveyor_config
+from tofcut.driver.conveyor.config import LinkSettings, load_conveyor_config
+from tofcut.driver.conveyor.link import ConveyorClient
+from tofcut.driver.conveyor.reject_rule import PROPERTIES, RejectRule, TrackMeasures
 from tofcut.driver.demod import Optics
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import crc32
@@ -38,7 +39,6 @@ from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_rtu import crc16, serve
 from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.sim.pattern import pattern_calibration
-from tofcut.tracker.reject_rule import PROPERTIES, RejectRule, TrackMeasures
 from tofcut.tracker.tracks import Track
 
 HERE = Path(__file__).resolve().parent
@@ -266,7 +266,7 @@ def test_fuzzed_calibration_blocks():
 
 
 def _map_example() -> str:
-    import tofcut.driver.conveyor_map as module
+    import tofcut.driver.conveyor.config as module
 
     doc = module.__doc__ or ""
     lines = doc.split("::", 1)[1].splitlines()

@@ -1,11 +1,16 @@
-"""The layers import one way: driver → tracker → tools, with sim under the driver (README,
-"Layout"). Read from the code's own imports with grimp (the graph import-linter uses), so a
-lazy import inside a function counts as much as one at the top of a module."""
+"""The layers import one way: driver → tracker → tools, with sim under the driver
+(docs/architecture.md). Read from the code's own imports with grimp (the graph
+import-linter uses), so a lazy import inside a function counts as much as one at the top of
+a module."""
 
 from __future__ import annotations
 
+import itertools
+
 import grimp
 import pytest
+
+from tofcut.tools.cli import COMMANDS
 
 FORBIDDEN = [
     ("tofcut.driver", "tofcut.sim"),
@@ -15,7 +20,19 @@ FORBIDDEN = [
     ("tofcut.tracker", "tofcut.tools"),
     ("tofcut.sim", "tofcut.tracker"),
     ("tofcut.sim", "tofcut.tools"),
+    # inside tools: the pipeline is under everything that runs on it, commands are on top
+    ("tofcut.tools.pipeline", "tofcut.tools.commands"),
+    ("tofcut.tools.pipeline", "tofcut.tools.bench"),
+    ("tofcut.tools.pipeline", "tofcut.tools.evaluation"),
+    ("tofcut.tools.pipeline", "tofcut.tools.experiments"),
+    ("tofcut.tools.bench", "tofcut.tools.commands"),
+    ("tofcut.tools.evaluation", "tofcut.tools.commands"),
+    ("tofcut.tools.experiments", "tofcut.tools.commands"),
+    # the multi-object tracker does not use the paper's single-target segmentation
+    ("tofcut.tracker.tracker", "tofcut.tracker.paper"),
 ]
+
+COMMAND_MODULES = sorted(module for module, _ in COMMANDS.values())
 
 
 @pytest.fixture(scope="module")
@@ -24,11 +41,15 @@ def graph() -> grimp.ImportGraph:
 
 
 def test_the_graph_sees_the_imports_that_are_allowed(graph):
-    """The check below could not fail if the graph saw no imports at all."""
+    """The checks below could not fail if the graph saw no imports at all."""
     for importer, imported in [
         ("tofcut.tools", "tofcut.tracker"),
         ("tofcut.tracker", "tofcut.driver"),
         ("tofcut.sim", "tofcut.driver"),
+        ("tofcut.tools.commands", "tofcut.tools.pipeline"),
+        ("tofcut.tools.bench", "tofcut.tools.pipeline"),
+        ("tofcut.tracker.paper", "tofcut.tracker.kernels"),
+        ("tofcut.tools.commands.live", "tofcut.tools.commands.tracking"),
     ]:
         assert graph.chain_exists(importer=importer, imported=imported, as_packages=True)
 
@@ -39,3 +60,15 @@ def test_no_layer_imports_upwards_or_sideways(graph, importer, imported):
     assert not chains, f"{importer} reaches {imported}: " + "; ".join(
         " → ".join(chain) for chain in sorted(chains)
     )
+
+
+def test_no_command_imports_another(graph):
+    """What two commands share lives in a module that is not a command (`commands.tracking`,
+    the pipeline), so each command can change without moving another."""
+    assert len(COMMAND_MODULES) == len(COMMANDS) > 1
+    reached = [
+        f"{a} → {b}"
+        for a, b in itertools.permutations(COMMAND_MODULES, 2)
+        if graph.chain_exists(importer=a, imported=b)
+    ]
+    assert not reached, "commands import commands: " + "; ".join(reached)

@@ -12,13 +12,13 @@ from rerun.chunk import RrdReader
 
 from tofcut.driver.events import DeviceEvent, EventKind
 from tofcut.driver.stream import StreamStats
-from tofcut.tools import cmd_record, cmd_track
 from tofcut.tools.cli import main
-from tofcut.tools.latency import LatencyHistogram
-from tofcut.tools.losses import describe_losses, format_ranges
-from tofcut.tools.pipeline import EVENTS_QUEUED, EventRelay
-from tofcut.tools.rerun_log import STATUS_EVERY
-from tofcut.tools.sources import open_source
+from tofcut.tools.commands import record, tracking
+from tofcut.tools.pipeline.latency import LatencyHistogram
+from tofcut.tools.pipeline.losses import describe_losses, format_ranges
+from tofcut.tools.pipeline.rerun_log import STATUS_EVERY
+from tofcut.tools.pipeline.run import EVENTS_QUEUED, EventRelay
+from tofcut.tools.pipeline.sources import open_source
 from tofcut.tracker.tracker import Tracker
 
 BELT_MPS = 0.25
@@ -46,7 +46,7 @@ def test_live_with_the_emulated_conveyor_gives_the_tracker_the_belts_prior(
             priors.append(belt)
             return super().update(frame, belt)
 
-    monkeypatch.setattr(cmd_track, "Tracker", SpyTracker)
+    monkeypatch.setattr(tracking, "Tracker", SpyTracker)
     rrd, tracks = tmp_path / "run.rrd", tmp_path / "tracks.jsonl"
     code = main(
         ["live", "emulator:conveyor", "--fast", "--frames", "36", "--conveyor-emulator",
@@ -195,7 +195,7 @@ def test_live_survives_an_unplug_and_a_stall_and_says_so(tmp_path, capsys, monke
         threading.Timer(0.5, unplug_for_a_while).start()
         return opened
 
-    monkeypatch.setattr(cmd_track, "open_source", open_with_faults)
+    monkeypatch.setattr(tracking, "open_source", open_with_faults)
     rrd = tmp_path / "run.rrd"
     code = main(["live", "emulator:conveyor", "--fast", "--seconds", "2.5", "--save", str(rrd)])
     assert code == 0
@@ -235,7 +235,7 @@ def test_record_fails_fast_unless_asked_to_reconnect(tmp_path, capsys, monkeypat
         opened.device.raw_frames = raw_frames
         return opened
 
-    monkeypatch.setattr(cmd_record, "open_source", open_then_unplug_at_frame_5)
+    monkeypatch.setattr(record, "open_source", open_then_unplug_at_frame_5)
     cap = tmp_path / "run.tofcap"
     argv = ["record", "emulator:test-pattern", "-o", str(cap), "--frames", "12", "--fast"]
     code = main(argv + (["--reconnect"] if reconnect else []))

@@ -19,10 +19,10 @@ from pathlib import Path
 import pytest
 
 from tofcut.driver.stream import StreamStats
-from tofcut.tools import startup
 from tofcut.tools.cli import main
-from tofcut.tools.keeping_up import PaceWatch, Tally, verdict
-from tofcut.tools.rerun_target import ViewerUnreachable, viewer_reachable
+from tofcut.tools.commands import startup
+from tofcut.tools.pipeline.keeping_up import PaceWatch, Tally, verdict
+from tofcut.tools.pipeline.rerun_target import ViewerUnreachable, viewer_reachable
 
 WAIT_S = 120.0
 

@@ -27,16 +27,17 @@ from tofcut.driver import Camera
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.config import CameraConfig, frame_period_for
 from tofcut.sim import EmulatedBackend, EmulatedCamera, FrameTruth, open_scene
-from tofcut.tools import rerun_log, rerun_memory
-from tofcut.tools.rerun_log import FrameLogger, track_color
-from tofcut.tools.rerun_sink import RerunOutputError, RerunSink, measure_logging_cost
-from tofcut.tools.rerun_target import (
+from tofcut.tools.bench import rerun_memory
+from tofcut.tools.pipeline import rerun_log
+from tofcut.tools.pipeline.rerun_log import FrameLogger, track_color
+from tofcut.tools.pipeline.rerun_sink import RerunOutputError, RerunSink, measure_logging_cost
+from tofcut.tools.pipeline.rerun_target import (
     RerunTarget,
     add_rerun_options,
     default_recording_path,
     target_from_args,
 )
-from tofcut.tools.status import PipelineStatus
+from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import Track, TrackedFrame
 
 HERE = Path(__file__).resolve().parent
@@ -292,7 +293,7 @@ def test_a_run_past_the_segment_size_writes_several_files_each_verified(tmp_path
 
 def test_a_segment_is_also_closed_after_its_time(tmp_path, run, monkeypatch):
     calibration, belt, frames = run
-    monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 4)
+    monkeypatch.setattr("tofcut.tools.pipeline.rerun_sink.SYNC_FRAMES", 4)
     target = RerunTarget.save(tmp_path / "t.rrd", segment_bytes=0, segment_s=1e-6)
     sink = RerunSink(calibration, target, belt, name="timed")
     for f in frames[:12]:
@@ -315,8 +316,8 @@ KILL_SCRIPT = """
 import signal, sys, time
 sys.path.insert(0, sys.argv[2])
 from test_rerun_out import emulated_run
-from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import RerunTarget
+from tofcut.tools.pipeline.rerun_sink import RerunSink
+from tofcut.tools.pipeline.rerun_target import RerunTarget
 calibration, belt, run = emulated_run(frames=4)
 sink = RerunSink(calibration, RerunTarget.save(sys.argv[1], segment_bytes=1_000_000), belt)
 n = 0
@@ -390,6 +391,22 @@ def test_every_frame_is_on_both_timelines(recording, run):
     assert len(stamps) == len(frames)
     assert None not in stamps
     assert stamps == sorted(stamps)
+
+
+def test_every_frame_is_on_the_run_s_index_and_the_host_s_clock(recording, run):
+    path, _ = recording
+    _, _, frames = run
+    # the run-wide index (never back, whatever the camera's sequence does) and the host time
+    index = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="frame")
+    assert sorted(index) == [status.frames - 1 for _, status in frames]
+    host = rows_on(path, "world/camera/depth", "DepthImage:buffer", timeline="host_time")
+    epoch = dt.datetime(1970, 1, 1)
+    assert sorted((t - epoch) // dt.timedelta(microseconds=1) for t in host) == [
+        t.frame.host_time_ns // 1000 for t, _ in frames
+    ]
+    born = all_rows(path, "events/tracks", "TextLog:text", timeline="frame")
+    assert born
+    assert all(t is not None for t, _ in born)  # events too are placed on the run's index
 
 
 def test_a_mask_comes_back_with_its_ids_labels_and_colours(recording, run):
@@ -603,7 +620,7 @@ def test_a_file_loses_nothing_even_when_its_writer_stalls(tmp_path, run, monkeyp
 def test_a_file_waits_for_rerun_to_write_every_few_frames(tmp_path, run, monkeypatch, lossless):
     calibration, belt, frames = run
     synced_after: list[int] = []
-    monkeypatch.setattr("tofcut.tools.rerun_sink.SYNC_FRAMES", 5)
+    monkeypatch.setattr("tofcut.tools.pipeline.rerun_sink.SYNC_FRAMES", 5)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=lossless)
     monkeypatch.setattr(sink._writer, "sync", lambda: synced_after.append(sink._written))
     for f in frames[:12]:
@@ -630,7 +647,7 @@ def test_frames_are_written_in_batches_and_a_lone_frame_is_not_held_back(
     monkeypatch.setattr(FrameLogger, "write_frames", write_frames)
     # A file: SYNC_FRAMES at a time (the delay is made long, so only the batch size counts);
     # what is left goes when the sink closes.
-    monkeypatch.setattr("tofcut.tools.rerun_sink.FILE_DELAY_S", 600.0)
+    monkeypatch.setattr("tofcut.tools.pipeline.rerun_sink.FILE_DELAY_S", 600.0)
     path = tmp_path / "file.rrd"
     sink = RerunSink(calibration, RerunTarget.save(path), belt)
     for tracked, status in frames[:20]:
@@ -652,7 +669,7 @@ def test_frames_are_written_in_batches_and_a_lone_frame_is_not_held_back(
 def test_a_live_viewer_that_never_recovers_cannot_hold_up_close(tmp_path, run, monkeypatch):
     calibration, belt, frames = run
     stall = Stall(monkeypatch)
-    monkeypatch.setattr("tofcut.tools.rerun_sink.LIVE_CLOSE_TIMEOUT_S", 0.05)
+    monkeypatch.setattr("tofcut.tools.pipeline.rerun_sink.LIVE_CLOSE_TIMEOUT_S", 0.05)
     sink = RerunSink(calibration, RerunTarget.save(tmp_path / "x.rrd"), belt, lossless=False)
     sink.log(*frames[0])
     assert stall.entered.wait(60)
@@ -700,8 +717,8 @@ CTRL_C_SCRIPT = """
 import signal, sys
 sys.path.insert(0, sys.argv[2])
 from test_rerun_out import emulated_run
-from tofcut.tools.rerun_sink import RerunSink
-from tofcut.tools.rerun_target import RerunTarget
+from tofcut.tools.pipeline.rerun_sink import RerunSink
+from tofcut.tools.pipeline.rerun_target import RerunTarget
 calibration, belt, run = emulated_run(frames=4)
 sink = RerunSink(calibration, RerunTarget.save(sys.argv[1]), belt)
 for n in range(int(sys.argv[3])):

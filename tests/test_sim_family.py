@@ -32,7 +32,7 @@ from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene
 from tofcut.tools.cli import main
-from tofcut.tools.sources import SourceSpec
+from tofcut.tools.pipeline.sources import SourceSpec
 
 COVER = range(200)
 """Seeds whose draws must cover every range."""

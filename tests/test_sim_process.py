@@ -26,7 +26,7 @@ from tofcut.sim import EmulatedBackend, EmulatedCamera, TestPattern, open_scene
 from tofcut.sim.device import EmulatedDevice
 from tofcut.sim.process import EmulatorProcess, EmulatorProcessError
 from tofcut.sim.source import Exposure
-from tofcut.tools.sources import SourceSpec, open_source
+from tofcut.tools.pipeline.sources import SourceSpec, open_source
 
 SERIAL = 0x4000002F
 WAIT_S = 60.0

@@ -267,7 +267,7 @@ def test_a_scene_file_that_is_not_a_scene_is_a_one_line_error(tmp_path, data, me
 
 
 def test_scene_errors_no_longer_end_in_a_stray_hint():
-    from tofcut.tools.sources import SourceError, scene_source
+    from tofcut.tools.pipeline.sources import SourceError, scene_source
 
     with pytest.raises(SourceError) as info:
         scene_source("no-such-scene")
@@ -275,7 +275,7 @@ def test_scene_errors_no_longer_end_in_a_stray_hint():
 
 
 def test_a_bad_scene_file_does_not_suggest_the_test_pattern(tmp_path):
-    from tofcut.tools.sources import SourceError, scene_source
+    from tofcut.tools.pipeline.sources import SourceError, scene_source
 
     path = tmp_path / "bad.toml"
     path.write_text(scene_toml(_with({"camera": {"fps": 0}})))

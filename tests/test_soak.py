@@ -12,7 +12,13 @@ import pytest
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.drill import FAULTS
 from tofcut.tools.cli import main
-from tofcut.tools.soak import HOST_OVERFLOW, UNEXPLAINED, FaultInjector, LossAudit, growth
+from tofcut.tools.experiments.soak import (
+    HOST_OVERFLOW,
+    UNEXPLAINED,
+    FaultInjector,
+    LossAudit,
+    growth,
+)
 
 
 def frame(flagged: bool = False) -> SimpleNamespace:

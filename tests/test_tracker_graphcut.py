@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_flow
 
-from tofcut.tracker.contraction import cut_lower_bounds, merged_nodes, solve_merged
-from tofcut.tracker.energy import (
+from tofcut.tracker.paper.contraction import cut_lower_bounds, merged_nodes, solve_merged
+from tofcut.tracker.paper.energy import (
     OFFSETS,
     energy_of,
     pair_slices,
@@ -21,7 +21,7 @@ from tofcut.tracker.energy import (
     potts_weights,
     seed_costs,
 )
-from tofcut.tracker.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
+from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
 
 
 def in_frame(weights: np.ndarray) -> np.ndarray:

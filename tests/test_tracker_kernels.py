@@ -272,3 +272,21 @@ def test_grouping_is_a_stable_argsort():
             want = np.argsort(keys, kind="stable")
             np.testing.assert_array_equal(order, want)
             np.testing.assert_array_equal(bounds, np.searchsorted(keys[want], np.arange(count + 1)))
+
+
+def test_every_step_the_reference_replaces_is_still_a_step_of_the_tracker():
+    # the reference overrides the tracker's steps by name: a step renamed or removed in the
+    # tracker would leave the reference's version unused, and the equivalence tests above
+    # would compare the compiled path with itself
+    from tofcut.tracker.background import BackgroundModel
+    from tofcut.tracker.reference import ReferenceBackground
+
+    own_helpers = {"_ties"}  # the reference's own, called by its steps
+    for ref, base in ((ReferenceTracker, Tracker), (ReferenceBackground, BackgroundModel)):
+        replaced = {
+            name for name, value in vars(ref).items()
+            if callable(value) and not name.startswith("__") and name not in own_helpers
+        }  # fmt: skip
+        assert replaced, ref
+        missing = [name for name in replaced if not callable(getattr(base, name, None))]
+        assert not missing, f"{ref.__name__} replaces {missing}, which {base.__name__} lacks"

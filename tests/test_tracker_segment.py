@@ -11,10 +11,10 @@ import pytest
 from tofcut.driver.errors import TofcutError
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tools.reproduce import deepest_pixel, iou
-from tofcut.tracker.bench import time_cut
+from tofcut.tools.bench.cut_timing import time_cut
+from tofcut.tools.experiments.reproduce import deepest_pixel, iou
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.segment import Energy, SegmentParams, Target, segment, segment_arrays
+from tofcut.tracker.paper.segment import Energy, SegmentParams, Target, segment, segment_arrays
 
 H, W = 40, 50
 

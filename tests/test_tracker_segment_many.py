@@ -7,10 +7,10 @@ import pytest
 
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tools.reproduce import deepest_pixel, iou
+from tofcut.tools.experiments.reproduce import deepest_pixel, iou
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.segment import Energy, Target, segment
-from tofcut.tracker.segment_many import segment_many
+from tofcut.tracker.paper.segment import Energy, Target, segment
+from tofcut.tracker.paper.segment_many import segment_many
 
 
 @pytest.fixture(scope="module")

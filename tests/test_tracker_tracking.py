@@ -12,7 +12,7 @@ import pytest
 from tofcut.sim import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tools.cli import main
-from tofcut.tools.pipeline import LiveFeed
+from tofcut.tools.pipeline.run import LiveFeed
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.tracker import Tracker, TrackerParams
 
@@ -92,7 +92,7 @@ def test_conveyor_boxes_are_found_and_keep_their_ids():
 
 def _score_run(name, frames):
     from tofcut.driver.calibration import pixel_rays
-    from tofcut.tools.cmd_evaluate import score
+    from tofcut.tools.evaluation.run_scores import score
     from tofcut.tracker.belt_prior import VelocityPrior
 
     src = open_scene(name, 0)
@@ -154,7 +154,8 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
     assert code == 0
     lines = [json.loads(x) for x in tracks.read_text().splitlines()]
     assert [x["seq"] for x in lines] == list(range(30))
-    assert all(set(x) == {"seq", "device_time_us", "tracks"} for x in lines)
+    keys = {"frame", "seq", "device_time_us", "host_time_ns", "tracks"}
+    assert all(set(x) == keys for x in lines)
     some = [t for x in lines for t in x["tracks"]]
     assert some
     assert set(some[0]) == {"id", "centroid", "velocity", "bbox", "pixels"}
@@ -173,7 +174,7 @@ def test_track_command_writes_tracks_and_masks(tmp_path, capsys):
 
 def test_evaluation_scores_the_truth_itself_as_perfect_and_a_swap_as_a_switch():
     from tofcut.driver.calibration import pixel_rays
-    from tofcut.tools.cmd_evaluate import per_object, score
+    from tofcut.tools.evaluation.run_scores import per_object, score
 
     src = open_scene("conveyor", 0)
     rays = pixel_rays(src.calibration)

@@ -1,4 +1,4 @@
-"""The `tofcut` command line: one subcommand per module in `tofcut.tools`.
+"""The `tofcut` command line: one subcommand per module in `tofcut.tools.commands`.
 
 Only the command asked for is imported (its module brings the tracker, rerun, pandas, ...
 when it needs them), so `tofcut --help`, `--version`, `devices` and `ports` start at once;
@@ -21,41 +21,44 @@ from typing import NoReturn
 
 from tofcut import __version__
 from tofcut.driver.errors import TofcutError
-from tofcut.tools import startup
+from tofcut.tools.commands import startup
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "devices": ("tofcut.tools.cmd_devices", "list cameras (serial, firmware, resolution)"),
-    "info": ("tofcut.tools.cmd_info", "show a camera's info, registers and calibration"),
-    "record": ("tofcut.tools.cmd_record", "record a camera's raw frames to a .tofcap capture"),
+    "devices": ("tofcut.tools.commands.devices", "list cameras (serial, firmware, resolution)"),
+    "info": ("tofcut.tools.commands.info", "show a camera's info, registers and calibration"),
+    "record": ("tofcut.tools.commands.record", "record a camera's raw frames to a .tofcap capture"),
     "convert": (
-        "tofcut.tools.cmd_convert",
+        "tofcut.tools.commands.convert",
         "capture → npz arrays, PLY/PCD point clouds or 16-bit depth PNGs",
     ),
-    "live": ("tofcut.tools.cmd_live", "track live from a camera (default: the emulated conveyor)"),
-    "track": ("tofcut.tools.cmd_track", "track objects in a capture or from a camera"),
+    "live": (
+        "tofcut.tools.commands.live",
+        "track live from a camera (default: the emulated conveyor)",
+    ),
+    "track": ("tofcut.tools.commands.track", "track objects in a capture or from a camera"),
     "calibrate": (
-        "tofcut.tools.cmd_calibrate",
+        "tofcut.tools.commands.calibrate",
         "find the belt (plane, travel, speed, width) and write it to a map",
     ),
     "evaluate": (
-        "tofcut.tools.cmd_evaluate",
+        "tofcut.tools.commands.evaluate",
         "score tracks and masks against emulator ground truth (or a family)",
     ),
     "scenes": (
-        "tofcut.tools.cmd_scenes",
+        "tofcut.tools.commands.scenes",
         "list the emulator's scenes and draw them, or draw a family's line from a seed",
     ),
     "reproduce": (
-        "tofcut.tools.cmd_reproduce",
+        "tofcut.tools.commands.reproduce",
         "run the paper's segmentation experiments on the emulator and write a report",
     ),
-    "ports": ("tofcut.tools.cmd_ports", "list serial ports (for --conveyor PORT)"),
+    "ports": ("tofcut.tools.commands.ports", "list serial ports (for --conveyor PORT)"),
     "soak": (
-        "tofcut.tools.cmd_soak",
+        "tofcut.tools.commands.soak",
         "run the emulated line under random faults; account for every lost frame",
     ),
     "bench": (
-        "tofcut.tools.cmd_bench",
+        "tofcut.tools.commands.bench",
         "measure every stage on one core, against its naive form and its peers",
     ),
 }

@@ -18,11 +18,12 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels
+from tofcut.tracker.errors import SegmentError
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 
 NOISE_SHARE = 0.7
@@ -90,15 +91,15 @@ class BackgroundParams:
 
     def __post_init__(self) -> None:
         if self.reveal_frames < 1:
-            raise ValueError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
+            raise SegmentError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
         if self.learn_frames < 1:
-            raise ValueError(f"learn_frames must be at least 1, got {self.learn_frames}")
+            raise SegmentError(f"learn_frames must be at least 1, got {self.learn_frames}")
         if not 0.0 < self.rate <= 1.0:
-            raise ValueError(f"rate must be in (0, 1], got {self.rate}")
+            raise SegmentError(f"rate must be in (0, 1], got {self.rate}")
         if self.min_height_sigmas <= 0:
-            raise ValueError(f"min_height_sigmas must be > 0, got {self.min_height_sigmas}")
+            raise SegmentError(f"min_height_sigmas must be > 0, got {self.min_height_sigmas}")
         if self.min_sigma_m <= 0 or self.noise_factor <= 0 or self.min_height_m < 0:
-            raise ValueError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
+            raise SegmentError("min_sigma_m and noise_factor must be > 0, min_height_m >= 0")
 
 
 class BackgroundModel:
@@ -117,6 +118,19 @@ class BackgroundModel:
         self._farther_min = np.full(shape, np.inf)
         self._unknown_seen = np.zeros(shape, np.int32)
         self._unknown_reads = np.full((self.params.reveal_frames, *shape), np.nan)
+        self._laid: B = np.zeros(shape, bool)
+        """Pixels whose scenery `clear_belt` put on the belt, with what they held before and
+        what it put there (to take a belt off again when another replaces it)."""
+        self._unlaid_range: F64 = np.full(shape, np.nan)
+        self._unlaid_sigma: F64 = np.full(shape, np.nan)
+        self._laid_range: F64 = np.full(shape, np.nan)
+        self._held_for: BeltGeometry | None = None
+        self._held_surface: F64 = np.full(shape, np.nan)
+        """The belt's surface along each pixel's ray, where it meets the belt (else NaN)."""
+        self._cleared_range: F64 = np.full(shape, np.nan)
+        self._cleared_sigma: F64 = np.full(shape, np.nan)
+        """The scenery as the last `clear_belt` left it, and what `absorb` took in since: what
+        `hold_belt` holds it to."""
 
         self.ready = False
         """True once the learning frames are in."""
@@ -156,7 +170,12 @@ class BackgroundModel:
         that stood on the belt during the first frames are not scenery), and where it saw a
         little behind it (an object's edge or a flying pixel read far while the scenery was
         learned: nothing is seen through a belt, and such a pixel would stand out once the
-        belt shows there)."""
+        belt shows there). A belt laid before is taken off first, where nothing was learned
+        over it since: the belt found from the data can move to another layer (the floor
+        beside a raised belt was taken for it), and what it laid was never seen."""
+        back = self._laid & (self.range == self._laid_range)
+        self.range[back] = self._unlaid_range[back]
+        self.sigma[back] = self._unlaid_sigma[back]
         with np.errstate(invalid="ignore", divide="ignore"):
             rays = frame.xyz / frame.range[..., None]
         surface = belt.range_along(rays)
@@ -170,14 +189,45 @@ class BackgroundModel:
             behind &= off < BEHIND_BELT_M
             level = on & (np.abs(off) < LEVEL_M)
         fix = _objects_only(above, points, belt, level) | behind
+        self._laid = fix
+        self._unlaid_range[fix] = self.range[fix]
+        self._unlaid_sigma[fix] = self.sigma[fix]
         self.range[fix] = surface[fix]
         self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
+        self._laid_range = np.where(fix, self.range, np.nan)
+        self._cleared_range = np.where(self.known, self.range, np.nan)
+        self._cleared_sigma = self.sigma.copy()
+
+    def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
+        """Over a running belt of known width nothing stands still: where the scenery has come
+        nearer than it was when the belt was laid (objects passing so slowly, or so close
+        together, that the model took them in), it goes back to what it was then, and its
+        noise to at most the larger of then and what the sensor's `noise` says (objects missed
+        while passing would otherwise widen it, until none stood out of it). What stood
+        there when the belt was laid (a rail, a guide) stays; a pixel learned only since
+        goes back to the belt's surface."""
+        if belt is not self._held_for or np.isnan(self._held_surface).all():
+            with np.errstate(invalid="ignore", divide="ignore"):
+                surface = belt.range_along(frame.xyz / frame.range[..., None])
+            self._held_for = belt
+            self._held_surface = np.where(np.isfinite(surface), surface, np.nan)
+        p = self.params
+        over = self.known & np.isfinite(self._held_surface)
+        then = np.where(np.isnan(self._cleared_range), self._held_surface, self._cleared_range)
+        cap = np.maximum(noise, p.min_sigma_m)
+        with np.errstate(invalid="ignore"):
+            loud = over & (self.sigma > cap)
+            self.sigma[loud] = cap[loud]
+            came = over & (then - self.range > np.maximum(3.0 * self.sigma, p.min_height_m))
+        self.range[came] = then[came]
 
     def absorb(self, frame: Frame, where: B, noise: F64) -> None:
         """Take what is seen in `where` as scenery from now on (something that stays put)."""
         take = where & frame.valid
         self.range[take] = frame.range[take]
         self.sigma[take] = noise[take]
+        self._cleared_range[take] = frame.range[take]  # scenery by decision: `hold_belt` keeps it
+        self._cleared_sigma[take] = noise[take]
         self.known |= take
         self._farther[take] = 0
         self._farther_min[take] = np.inf

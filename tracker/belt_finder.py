@@ -32,11 +32,20 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
+from tofcut.tracker.belt_sweep import (
+    SweepParams,
+    SweepWindow,
+    SweptLayer,
+    choose_swept,
+    swept_layers,
+)
+from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.noise import range_noise
 
-F64 = npt.NDArray[np.float64]
+F32 = npt.NDArray[np.float32]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 
@@ -135,17 +144,19 @@ class FinderParams:
     """Tops that disagree more than this on the direction leave the travel unknown..."""
     max_speed_se: float = 0.01
     """...as does a velocity whose standard error is more than this share of the speed."""
+    sweep: SweepParams = field(default_factory=SweepParams)
+    """How the belt is told from the floor and from box tops by what moves over it."""
 
     def __post_init__(self) -> None:
         if self.plane_frames < 1 or self.ransac_tries < 1 or self.ransac_points < 3:
-            raise ValueError("plane_frames >= 1, ransac_tries >= 1, ransac_points >= 3")
+            raise SegmentError("plane_frames >= 1, ransac_tries >= 1, ransac_points >= 3")
         if self.edges_every < 1 or self.top_grow < 0 or self.min_top_pixels < 1:
-            raise ValueError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
+            raise SegmentError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
         if not 0 < self.top_tilt_deg < 90:
-            raise ValueError("top_tilt_deg must be in (0, 90)")
+            raise SegmentError("top_tilt_deg must be in (0, 90)")
         shares = (self.min_layer_share, self.island_share, self.min_support_share)
         if not all(0 < x < 1 for x in shares):
-            raise ValueError("min_layer_share, island_share, min_support_share: in (0, 1)")
+            raise SegmentError("min_layer_share, island_share, min_support_share: in (0, 1)")
         positive = (
             self.layer_bin_m, self.min_band_m, self.max_band_m, self.max_sigma_m, self.drop_m,
             self.min_span_m, self.top_reach_m, self.top_below_m, self.top_height_m,
@@ -155,9 +166,9 @@ class FinderParams:
             self.give_up_s, self.min_shift_m, self.max_spread_deg, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
-            raise ValueError("lengths, speeds, times and shares must be positive numbers")
+            raise SegmentError("lengths, speeds, times and shares must be positive numbers")
         if self.done_s < self.settle_s or self.max_speed_mps <= self.min_speed_mps:
-            raise ValueError("done_s >= settle_s and max_speed_mps > min_speed_mps")
+            raise SegmentError("done_s >= settle_s and max_speed_mps > min_speed_mps")
 
 
 @dataclass(frozen=True, eq=False)
@@ -360,14 +371,14 @@ def dominant_normal(points: F64, sigma: F64, tries: int, seed: int = 0) -> F64:
     only. Refitted on the largest pile. Pointing to the camera."""
     rng = np.random.default_rng(seed)
     if len(points) < 3:
-        raise ValueError("a plane needs three points")
+        raise SegmentError("a plane needs three points")
     picks = rng.integers(0, len(points), (tries, 3))
     a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
     normals = np.cross(b - a, c - a)
     lengths = np.linalg.norm(normals, axis=1)
     good = lengths > 1e-9
     if not good.any():
-        raise ValueError("the points are all on one line")
+        raise SegmentError("the points are all on one line")
     normals = normals[good] / lengths[good, None]
     step = max(1, len(points) // SCORE_POINTS)
     scored, weight = points[::step], 1.0 / sigma[::step]
@@ -549,6 +560,26 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
     return layers
 
 
+def pooled_layers(heights: F32, ok: B, sigma: F32, band: F32, params: FinderParams) -> list[float]:
+    """The layers' offsets (n·p) in heights pooled over several frames (samples, pixels):
+    peaks of all of them (3×3 medians are sharp enough: the sharper half alone would leave out
+    a dark, noisy belt), each refined to the median of what lies within its band, and peaks
+    that found the same layer kept once."""
+    if not ok.any():
+        return []
+    found = find_layers(
+        heights[ok].astype(np.float64), params.layer_bin_m,
+        round(params.min_layer_share * np.count_nonzero(ok) / len(heights)),
+    )  # fmt: skip
+    few = slice(None, None, 3)
+    pooled, reach = heights[ok][few].astype(np.float64), band[ok][few].astype(np.float64)
+    distinct: list[float] = []
+    for off in sorted((layer_offset(pooled, reach, h) for h, _, _ in found), reverse=True):
+        if all(abs(off - d) >= params.min_band_m for d in distinct):
+            distinct.append(off)
+    return distinct
+
+
 def span_width(xyz: F64, mask: B, normal: F64) -> float:
     """The width (across its long axis, in the plane of `normal`) of the widest piece of
     `mask` that touches two opposite borders of the image; 0 when no piece does."""
@@ -588,7 +619,7 @@ def plane_basis(normal: F64) -> tuple[F64, F64]:
         if length > 0.1:
             e1 = e1 / length
             return e1, np.cross(normal, e1)
-    raise ValueError("no plane axis")  # unreachable for a unit normal
+    raise SegmentError("no plane axis")  # unreachable for a unit normal
 
 
 def long_axis(uv: F64) -> F64:
@@ -1059,6 +1090,10 @@ class BeltFinder:
         self._moved = False
         self._edges: _EdgeSums | None = None
         self._width: WidthFit | None = None
+        self._sweep: SweepWindow | None = None
+        self._swept: SweptLayer | None = None
+        self.moves = 0
+        """Times the plane was moved to another layer, once it was seen what moves over which."""
 
     @property
     def estimate(self) -> BeltEstimate:
@@ -1079,18 +1114,20 @@ class BeltFinder:
         self._frames += 1
         self._t_first = t if self._t_first is None else self._t_first
         self._t_last = t
+        sigma = range_noise(frame, NOISE_FLOOR_M)
         if not self._plane_final:
-            self._fit_plane(frame, ok)
+            self._fit_plane(frame, ok, sigma)
         elif self._plane is not None:
-            self._follow(frame, ok, t)
+            self._follow(frame, ok, sigma, t)
             if self._edges is None:
                 self._edges = _EdgeSums.empty(ok.shape)
             if self._edges.frames % self.params.edges_every == 0:
                 self._edges.add(frame.xyz, ok, self._plane, self._e1, self._e2)
             self._edges.frames += 1
-            if self._status != "looking":
-                self._width = self._fit_width()
-                self.done = True
+        self._sweep_frame(frame, ok, sigma, t)
+        if self._plane_final and self._status != "looking" and self._settled(t):
+            self._width = self._fit_width()
+            self.done = True
         self._estimate = self._make_estimate()
         return self._estimate
 
@@ -1112,10 +1149,9 @@ class BeltFinder:
 
     # --- the plane -----------------------------------------------------------------------
 
-    def _fit_plane(self, frame: Frame, ok: B) -> None:
+    def _fit_plane(self, frame: Frame, ok: B, sigma: F64) -> None:
         """The first frame's layers and belt; the frames' sums; the refit once enough are in."""
         p = self.params
-        sigma = range_noise(frame, NOISE_FLOOR_M)
         if self._plane is None:
             layers = find_belt_layers(frame.xyz, ok, sigma, p)
             pick = choose_belt(layers, p)
@@ -1149,7 +1185,7 @@ class BeltFinder:
 
     # --- the travel ----------------------------------------------------------------------
 
-    def _follow(self, frame: Frame, ok: B, t: float) -> None:
+    def _follow(self, frame: Frame, ok: B, sigma: F64, t: float) -> None:
         """Follow this frame's tops on, re-estimate the travel, and settle the state."""
         if self._status != "looking":
             return
@@ -1165,7 +1201,7 @@ class BeltFinder:
             self._e2,
             self._pixel_rad,
             p,
-            range_noise(frame, NOISE_FLOOR_M),
+            sigma,
         )
         matched = match_tops(self._follows, tops, t, p)
         taken = {j for j in matched if j is not None}
@@ -1218,6 +1254,56 @@ class BeltFinder:
         for f in self._follows:
             self._close(f)
         self._follows = []
+
+    # --- the layer things move over -----------------------------------------------------
+
+    def _settled(self, t: float) -> bool:
+        """Whether the belt's layer is settled: seen swept, or nothing moved to sweep it, or
+        looked for long enough."""
+        assert self._t_first is not None
+        if self._swept is not None or self._status == "none":
+            return True
+        return t - self._t_first >= self.params.give_up_s
+
+    def _sweep_frame(self, frame: Frame, ok: B, sigma: F64, t: float) -> None:
+        """Sample the frame into the sweep window and, when due, judge which layer is swept
+        (`tracker.belt_sweep`); move the plane there if it is not the one chosen."""
+        if self._plane is None or not self._plane_final or self._swept is not None:
+            return  # the refitted plane's normal: the first frame's may be a little off
+        p = self.params
+        if self._sweep is None:
+            self._sweep = SweepWindow(ok.shape, self._plane.normal, p.sweep)
+        self._sweep.add(frame.xyz, ok & (sigma <= quiet_enough(sigma[ok], p)), sigma, t)
+        if not self._sweep.due(t):
+            return
+        window = self._sweep
+        heights, usable, noise = window.judged(t)
+        band = band_of(noise.astype(np.float64), p).astype(np.float32)
+        offsets = pooled_layers(heights, usable, noise, band, p)
+        verdict = choose_swept(
+            swept_layers(heights, usable, noise, offsets, band, p.sweep), window.pixels, p.sweep
+        )
+        if verdict is None:
+            return
+        self._swept, self._sweep = verdict, None
+        if abs(verdict.offset_m - self._plane.offset_m) <= p.max_band_m:
+            return
+        plane = PlaneFit(
+            window.normal, verdict.offset_m, verdict.rms_m, verdict.on,
+            int(np.count_nonzero(usable)),
+        )  # fmt: skip
+        self._move_plane(plane, frame, ok, sigma)
+
+    def _move_plane(self, plane: PlaneFit, frame: Frame, ok: B, sigma: F64) -> None:
+        """Put the belt on another layer: what was followed over the old one starts again."""
+        self._set_plane(plane)
+        self.moves += 1
+        self._follows, self._segments, self._travel = [], [], None
+        self._status, self._edges, self._width = "looking", None, None
+        with np.errstate(invalid="ignore"):
+            on = ok & (np.abs(plane.height(frame.xyz)) < band_of(sigma, self.params))
+        pts = frame.xyz[on]
+        self._axis2d = long_axis(np.stack([pts @ self._e1, pts @ self._e2], axis=1))
 
     # --- the estimate --------------------------------------------------------------------
 

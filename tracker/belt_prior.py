@@ -12,11 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltReading, KnownBelt
-
-F64 = npt.NDArray[np.float64]
 
 KNOWN_SPEED_SIGMA_MPS = 0.02
 """How sure the tracker is of a belt's speed as a scene, a capture or a finder gives it, m/s."""

@@ -17,9 +17,11 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64
+
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
+F32 = npt.NDArray[np.float32]
 
 NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
 """Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
@@ -1253,6 +1255,44 @@ def top_stats(
     return size, height, noise2, home
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def sweep_scores(
+    heights: F32, ok: B, reach: F32, band: F32, offsets: F64, min_times: int
+) -> tuple[I64, I64, F64]:  # fmt: skip
+    """For each layer (`offsets`, n·p) over (samples, pixels) heights: the pixels seen on it
+    (within `band`), above it (by more than `reach`) in at least `min_times` samples each and
+    below it in fewer; and the count and sum of squares of the heights seen on it."""
+    samples, pixels = heights.shape
+    layers = offsets.size
+    swept = np.zeros(layers, np.int64)
+    on = np.zeros(layers, np.int64)
+    squares = np.zeros(layers)
+    at = np.zeros(layers, np.int64)
+    up = np.zeros(layers, np.int64)
+    down = np.zeros(layers, np.int64)
+    for i in range(pixels):
+        at[:] = 0
+        up[:] = 0
+        down[:] = 0
+        for t in range(samples):
+            if not ok[t, i]:
+                continue
+            for k in range(layers):
+                d = heights[t, i] - offsets[k]
+                if abs(d) < band[t, i]:
+                    at[k] += 1
+                    squares[k] += d * d
+                elif d > reach[t, i]:
+                    up[k] += 1
+                elif d < -reach[t, i]:
+                    down[k] += 1
+        for k in range(layers):
+            on[k] += at[k]
+            if at[k] >= min_times and up[k] >= min_times and down[k] < min_times:
+                swept[k] += 1
+    return swept, on, squares
+
+
 def warm_up() -> None:
     """Load (or compile) every kernel for the argument types the tracker calls it with, so
     the first frames of a live run do not stall on it (about a second, once per process)."""
@@ -1291,6 +1331,8 @@ def warm_up() -> None:
     background_cost(f64, f64, yes, f64, yes, 1.0, 1.0, 1.0)
     noise_scaled(noise_fit(f64, f64, yes, f64, 1)[0], 1.0, 1.0)
     median(np.zeros(2))
+    f32 = np.zeros((2, 2), np.float32)
+    sweep_scores(f32, yes, f32, f32, np.zeros(1), 2)
     standing_out(f64, f64, yes, f64, yes, np.zeros((2, 2), np.uint16), 1.0, 1.0)
     counts = np.zeros((2, 2), np.int32)
     follow_scene(

@@ -12,11 +12,10 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.tracker.belt_prior import VelocityPrior
-
-F64 = npt.NDArray[np.float64]
+from tofcut.tracker.errors import SegmentError
 
 
 @dataclass(frozen=True)
@@ -32,7 +31,7 @@ class MotionParams:
 
     def __post_init__(self) -> None:
         if min(self.accel_sigma, self.measure_sigma_m, self.initial_speed_sigma) <= 0:
-            raise ValueError("motion noise levels must be positive")
+            raise SegmentError("motion noise levels must be positive")
 
 
 _POSITION = slice(0, 3)

@@ -15,9 +15,10 @@ import maxflow
 import numpy as np
 import numpy.typing as npt
 
+from tofcut._types import F64
+from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.kernels import cheapest_where, expansion_terms, moving_graph, settled
 
-F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
 
 
@@ -32,11 +33,11 @@ class PottsProblem:
 
     def __post_init__(self) -> None:
         if self.unary.ndim != 2 or self.unary.shape[0] < 1:
-            raise ValueError("unary must be (labels, nodes)")
+            raise SegmentError("unary must be (labels, nodes)")
         if not (self.i.shape == self.j.shape == self.w.shape):
-            raise ValueError("edge arrays i, j, w must have the same shape")
+            raise SegmentError("edge arrays i, j, w must have the same shape")
         if self.w.size and float(self.w.min()) < 0:
-            raise ValueError("Potts weights must be non-negative")
+            raise SegmentError("Potts weights must be non-negative")
 
     @property
     def labels(self) -> int:
@@ -98,7 +99,7 @@ class _Core:
 def solve_binary(problem: PottsProblem) -> I64:
     """The exact minimum of a two-label problem: one min cut."""
     if problem.labels != 2:
-        raise ValueError(f"solve_binary takes two labels, got {problem.labels}")
+        raise SegmentError(f"solve_binary takes two labels, got {problem.labels}")
     core = _Core.of(problem, None)
     # one move from all background: what is settled is on its label from the start
     start = cheapest_where(problem.unary, core.local < 0)

@@ -11,12 +11,10 @@ a single threshold in metres cannot serve both.
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels
-
-F64 = npt.NDArray[np.float64]
 
 MAD_TO_SIGMA = 1.4826
 """A normal variable's σ over its median absolute value."""

@@ -11,6 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from tofcut._types import F64
 from tofcut.driver.frames import Frame
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
@@ -25,7 +26,6 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker, _quietened
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 _Index = tuple[slice, slice]

@@ -7,9 +7,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64
 
 
 def covariance(points: F64) -> F64:

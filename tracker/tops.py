@@ -15,10 +15,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import kernels
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I32 = npt.NDArray[np.int32]
 

@@ -32,6 +32,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import kernels, stats
@@ -50,7 +51,6 @@ from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 from tofcut.tracker.tracks import Track, TrackedFrame
 
-F64 = npt.NDArray[np.float64]
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 I32 = npt.NDArray[np.int32]
@@ -147,21 +147,21 @@ class TrackerParams:
         }
         for name, value in positive.items():
             if not value > 0:
-                raise ValueError(f"TrackerParams.{name} must be positive, got {value}")
+                raise SegmentError(f"TrackerParams.{name} must be positive, got {value}")
         if self.cloud_points < 1:
-            raise ValueError("cloud_points must be at least 1")
+            raise SegmentError("cloud_points must be at least 1")
         if self.smoothness < 0 or self.deadband < 0 or self.surface_weight < 0:
-            raise ValueError("smoothness, deadband and surface_weight must not be negative")
+            raise SegmentError("smoothness, deadband and surface_weight must not be negative")
         if self.background_cap <= self.object_cost:
-            raise ValueError("background_cap must exceed object_cost, or nothing is ever found")
+            raise SegmentError("background_cap must exceed object_cost, or nothing is ever found")
         if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1 or self.split_pixels < 1:
-            raise ValueError(
+            raise SegmentError(
                 "split_share must be in (0, 0.5], split_frames and split_pixels at least 1"
             )
         if self.confirm_frames < 1 or self.min_pixels < 1:
-            raise ValueError("confirm_frames and min_pixels must be at least 1")
+            raise SegmentError("confirm_frames and min_pixels must be at least 1")
         if not 0.0 < self.whole_fraction <= 1.0:
-            raise ValueError("whole_fraction must be in (0, 1]")
+            raise SegmentError("whole_fraction must be in (0, 1]")
 
 
 @dataclass(eq=False)
@@ -313,11 +313,13 @@ class Tracker:
     def add_target(self, *, pixel: tuple[int, int] | None = None, point: F64 | None = None) -> None:
         """Follow a known target from the next frame on: a seed pixel (u, v) or a 3D point."""
         if (pixel is None) == (point is None):
-            raise ValueError("give a target as a seed pixel or as a 3D point, not both or neither")
+            raise SegmentError(
+                "give a target as a seed pixel or as a 3D point, not both or neither"
+            )
         if point is not None:
             point = np.asarray(point, float)
             if point.shape != (3,) or not np.isfinite(point).all():
-                raise ValueError(f"a target point must be three finite numbers, got {point!r}")
+                raise SegmentError(f"a target point must be three finite numbers, got {point!r}")
         self._seeds.append((pixel, point))
 
     def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
@@ -365,6 +367,8 @@ class Tracker:
             # belt goes under it, once the scenery and the belt are both known
             self.background.clear_belt(frame, self.belt)
             self._belt_laid = True
+        if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
+            self.background.hold_belt(frame, self.belt, noise)
         out = tuple(t.last for t in self._tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
 
@@ -414,9 +418,9 @@ class Tracker:
             else:
                 u, v = pixel
                 if not (0 <= u < w and 0 <= v < h):
-                    raise ValueError(f"seed pixel {pixel} is outside the {w}x{h} frame")
+                    raise SegmentError(f"seed pixel {pixel} is outside the {w}x{h} frame")
                 if not frame.valid[v, u]:
-                    raise ValueError(f"seed pixel {pixel} is not valid in this frame")
+                    raise SegmentError(f"seed pixel {pixel} is not valid in this frame")
             seed = frame.xyz[v, u]
             pts = frame.xyz[self._region(frame, seed)]
             born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))

@@ -1,0 +1,111 @@
+"""Which layer is the belt, told by what moves over it (`tofcut.tracker.belt_sweep`): heights
+over time made by hand, with a floor below, a belt that boxes pass over, and box tops."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tofcut.tracker.belt_sweep import (
+    SweepParams,
+    SweepWindow,
+    SweptLayer,
+    choose_swept,
+    median_heights,
+    swept_layers,
+)
+
+FLOOR, BELT, TOP = -2.7, -2.2, -2.0
+"""Offsets n·p of the layers (the camera 2.7 m above the floor, 2.2 m above the belt)."""
+
+
+def _line(samples: int = 20, pixels: int = 300, seed: int = 0) -> np.ndarray:
+    """(samples, pixels) heights: pixels 0-99 floor, 100-299 belt, with a 0.2 m box 50 pixels
+    long passing over the belt 5 pixels a sample; noise 1 cm."""
+    rng = np.random.default_rng(seed)
+    h = np.empty((samples, pixels), np.float32)
+    h[:, :100] = FLOOR
+    h[:, 100:] = BELT
+    for t in range(samples):
+        start = 100 + 5 * t
+        h[t, start : start + 50] = TOP
+    return h + rng.normal(0, 0.01, h.shape).astype(np.float32)
+
+
+def _score(h: np.ndarray, layers: list[float]) -> list[SweptLayer]:
+    ok = np.ones(h.shape, bool)
+    sigma = np.full(h.shape, 0.01, np.float32)
+    band = np.full(h.shape, 0.02, np.float32)
+    return swept_layers(h, ok, sigma, layers, band, SweepParams())
+
+
+def test_the_belt_is_swept_the_floor_and_the_box_top_are_not():
+    floor, belt, top = _score(_line(), [FLOOR, BELT, TOP])
+    assert floor.swept == 0  # never covered
+    assert top.swept == 0  # the belt is seen below the box top once the box moves on
+    # every belt pixel the box went over and left again: on, above, never below
+    assert 120 <= belt.swept <= 200
+    assert belt.rms_m == pytest.approx(0.01, rel=0.2)
+    chosen = choose_swept([floor, belt, top], 300, SweepParams())
+    assert chosen is belt
+
+
+def test_noise_alone_sweeps_nothing():
+    h = _line()
+    h[:, 100:] = BELT + np.random.default_rng(1).normal(0, 0.01, h[:, 100:].shape)
+    scored = _score(h, [FLOOR, BELT, TOP])
+    assert all(lay.swept == 0 for lay in scored)
+    assert choose_swept(scored, 300, SweepParams()) is None
+
+
+def test_a_nearer_layer_half_as_swept_wins_only_when_clearly_apart():
+    p = SweepParams()
+    floor = SweptLayer(FLOOR, 1000, 0.01, 5000)
+    belt = SweptLayer(BELT, 600, 0.01, 3000)
+    assert choose_swept([floor, belt], 10_000, p) is belt  # occlusion at a tilt: floor first
+    twin = SweptLayer(BELT + 0.03, 900, 0.01, 3000)  # a second peak of one layer
+    assert choose_swept([SweptLayer(BELT, 1000, 0.01, 3000), twin], 10_000, p).offset_m == BELT
+    weak = SweptLayer(BELT, 400, 0.01, 3000)
+    assert choose_swept([floor, weak], 10_000, p) is floor
+    assert choose_swept([floor], 200_000, p) is None  # too little swept to say
+    assert choose_swept([], 100, p) is None
+
+
+def test_median_heights_leave_out_unusable_pixels_and_lone_outliers():
+    xyz = np.zeros((5, 5, 3))
+    xyz[..., 2] = 2.0
+    xyz[2, 2, 2] = 7.0  # a wrapped reading
+    ok = np.ones((5, 5), bool)
+    ok[0, 0] = False
+    h, usable = median_heights(xyz, ok, np.array([0.0, 0.0, -1.0]))
+    assert h[2, 2] == pytest.approx(-2.0)
+    assert not usable[0, 0]
+    assert usable[1, 1]
+
+
+def test_the_window_samples_at_its_pace_and_keeps_its_last_seconds():
+    p = SweepParams(every_s=0.1, window_s=0.5, first_s=0.3, judge_every_s=0.2, max_pixels=16)
+    w = SweepWindow((8, 8), np.array([0.0, 0.0, -1.0]), p)
+    assert w.pixels == 16  # an even grid of at most max_pixels
+    xyz = np.zeros((8, 8, 3))
+    xyz[..., 2] = 2.0
+    ok = np.ones((8, 8), bool)
+    sigma = np.full((8, 8), 0.01)
+    taken = [w.add(xyz, ok, sigma, t) for t in np.arange(0, 1.0, 0.05)]
+    assert sum(taken) == 10
+    assert w.filled == 5
+    assert not SweepWindow((8, 8), np.array([0.0, 0.0, -1.0]), p).due(10.0)
+    assert w.due(1.0)
+    heights, usable, noise = w.judged(1.0)
+    assert heights.shape == usable.shape == noise.shape == (5, 16)
+    assert not w.due(1.1)
+    assert w.due(1.2)
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [{"every_s": 0}, {"min_share": 1.5}, {"nearer_share": 0}, {"max_pixels": 0}, {"min_times": 0}],
+)
+def test_the_parameters_are_checked(bad):
+    with pytest.raises(ValueError, match=r"must|share|>= 1"):
+        SweepParams(**bad)

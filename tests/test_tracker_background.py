@@ -1,0 +1,96 @@
+"""The scenery model's belt (`tofcut.tracker.background`): laid under what stood on it, laid
+again when the belt found from the data moves to another layer, and held to the belt while
+the belt runs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tofcut.sim.catalog import open_scene
+from tofcut.sim.preview import decode, scene_exposure
+from tofcut.tracker.background import BackgroundModel
+from tofcut.tracker.noise import range_noise
+
+
+def _learned(frames: int = 6):
+    """A model learned on the conveyor's first frames, the last frame and the true belt."""
+    source = open_scene("conveyor", 0)
+    period = source.settings.frame_period * 1e-4
+    model = None
+    for i in range(frames):
+        frame = decode(source, scene_exposure(source, i * period, i))[0]
+        noise = range_noise(frame, 0.003)
+        model = model or BackgroundModel(frame.shape)
+        model.learn(frame, noise, np.zeros((0, 3)), 0.05)
+    assert model is not None
+    assert model.ready
+    return model, frame, noise, source.belt.geometry
+
+
+def _lowered(belt, metres: float):
+    """The same belt `metres` farther from the camera along its normal (a floor below it)."""
+    return dataclasses.replace(belt, point=belt.point - metres * belt.normal, width_m=None)
+
+
+def test_a_belt_laid_on_the_wrong_layer_is_taken_off_when_the_right_one_comes():
+    model, frame, _, belt = _learned()
+    once = BackgroundModel(frame.shape)
+    once.range, once.sigma, once.known = model.range.copy(), model.sigma.copy(), model.known.copy()
+    once.clear_belt(frame, belt)
+
+    model.clear_belt(frame, _lowered(belt, 0.5))  # the floor, taken for the belt at first
+    moved = np.nan_to_num(model.range) != np.nan_to_num(once.range)
+    assert moved.mean() > 0.2  # the whole belt was laid 0.5 m down
+    model.clear_belt(frame, belt)
+    np.testing.assert_array_equal(model.range, once.range)
+    np.testing.assert_array_equal(model.sigma, once.sigma)
+
+
+def test_what_was_learned_since_a_belt_was_laid_is_kept_when_it_is_taken_off():
+    model, frame, _, belt = _learned()
+    model.clear_belt(frame, _lowered(belt, 0.5))
+    laid = np.flatnonzero(np.isfinite(model._laid_range))
+    seen = laid[:10]
+    model.range.flat[seen] = 1.234  # learned from the frames since
+    model.clear_belt(frame, belt)
+    assert (model.range.flat[seen] == 1.234).all()
+
+
+def test_over_a_running_belt_the_scenery_is_held_to_what_it_was_when_the_belt_was_laid():
+    model, frame, noise, belt = _learned()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        surface = belt.range_along(frame.xyz / frame.range[..., None])
+    model.clear_belt(frame, belt)
+    laid = model.range.copy()
+    rows, cols = np.nonzero(model.known & np.isfinite(surface))
+    took = rows[100:300], cols[100:300]
+    model.range[took] -= 0.2  # an object the scenery took in since
+    model.sigma[took] = 0.3  # and the noise it widened
+    beside = ~np.isfinite(surface) & model.known
+    model.range[beside] -= 0.2  # off the belt, what the model learns is its own business
+    before_beside = model.range[beside].copy()
+
+    model.hold_belt(frame, belt, noise)
+    np.testing.assert_array_equal(model.range[took], laid[took])
+    assert (model.sigma[took] <= np.maximum(noise[took], 0.3)).all()
+    assert (model.sigma[took] < 0.3).all()
+    kept = model.known & np.isfinite(surface)
+    kept[took] = False
+    # what the scenery held when the belt was laid stays, even standing over the belt (a
+    # rail, a guide): the hold goes back to that, not down to the belt's plane
+    np.testing.assert_array_equal(model.range[kept], laid[kept])
+    np.testing.assert_array_equal(model.range[beside], before_beside)
+
+
+@pytest.mark.parametrize("height", [0.005, 0.01])
+def test_a_belt_lying_within_the_noise_of_the_scenery_leaves_it_nearly_as_learned(height):
+    model, frame, noise, belt = _learned()
+    model.clear_belt(frame, belt)
+    before = model.range.copy()
+    raised = dataclasses.replace(belt, point=belt.point + height * belt.normal)
+    model.hold_belt(frame, raised, noise)
+    changed = np.nan_to_num(model.range) != np.nan_to_num(before)
+    assert changed.mean() < 0.01, changed.mean()

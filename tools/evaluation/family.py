@@ -1,0 +1,520 @@
+"""Evaluating trackers on a family of lines: one bare capture per seed, every tracker, both
+matchings, and what each tracker scores over the family.
+
+`tofcut evaluate --family conveyor --seeds 1000-1039` runs, for each seed, the line
+`emulator:family:conveyor:SEED`; `--scene PATTERN` names the line itself (`{seed}` in it is
+replaced by the seed; without it, every seed renders the same scene). The seed is also the
+emulator's noise seed, so `--scene conveyor --seeds 0-3` is the built-in conveyor with four
+noise seeds. For each line:
+
+1. record a bare capture from the emulator (`tofcut record SOURCE --bare --fast --seed SEED
+   --frames N`: nothing but the camera's stream, and the ground truth beside it), unless
+   `--work` already holds a complete one recorded the same way;
+2. run each tracker on it as a user would, in its own process: `tofcut track CAPTURE
+   --tracks-out ... --masks-out ...`, and `python -m tofcut.tools.evaluation.baseline CAPTURE ...`;
+3. score each run both ways (`tofcut.tools.evaluation.scoring`).
+
+Lines run in parallel processes (`--workers`). A line that fails is reported with its seed
+and the error, and makes the exit code 1; it is never dropped silently.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tofcut.driver.capture import CaptureReader
+from tofcut.driver.errors import TofcutError
+from tofcut.sim.device import EmulatedCamera
+from tofcut.sim.renderer import SceneSource
+from tofcut.sim.truth import load_truth, truth_path
+from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
+from tofcut.tools.pipeline.sources import SourceError, scene_metadata, scene_source
+
+DEFAULT_SECONDS = 20.0
+TRACKERS = ("tofcut", "baseline")
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "tofcut.tools.cli", *args]
+
+
+def _tofcut(capture: Path, tracks: Path, masks: Path) -> list[str]:
+    """`tofcut track` as a user runs it (its rerun recording thrown away)."""
+    return _cli("track", str(capture), "--tracks-out", str(tracks), "--masks-out", str(masks),
+                "--save", os.devnull)  # fmt: skip
+
+
+def _baseline(capture: Path, tracks: Path, masks: Path) -> list[str]:
+    return [sys.executable, "-m", "tofcut.tools.evaluation.baseline", str(capture),
+            "--tracks-out", str(tracks), "--masks-out", str(masks)]  # fmt: skip
+
+
+COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
+    "tofcut": _tofcut,
+    "baseline": _baseline,
+}
+"""Each tracker's command line: capture, tracks out, masks out → argv."""
+
+
+class LineFailed(Exception):
+    """A step of a line went wrong: the message says which step and why, in one line."""
+
+
+def parse_seeds(text: str) -> tuple[int, ...]:
+    """`1000-1039`, `0-3`, `5` or `1,4,7-9`: the seeds in the order given, each once."""
+    seeds: list[int] = []
+    for part in text.split(","):
+        m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", part)
+        if m is None or (m[2] is not None and int(m[2]) < int(m[1])):
+            raise argparse.ArgumentTypeError(f"{text!r} is not seeds: e.g. 1000-1039 or 0,2,5-7")
+        seeds.extend(range(int(m[1]), int(m[2] or m[1]) + 1))
+    return tuple(dict.fromkeys(seeds))
+
+
+def parse_trackers(text: str) -> tuple[str, ...]:
+    """`tofcut,baseline`: tracker names from `COMMANDS`, each once."""
+    names = tuple(dict.fromkeys(n.strip() for n in text.split(",") if n.strip()))
+    unknown = [n for n in names if n not in COMMANDS]
+    if unknown or not names:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: trackers are a comma-separated choice of {', '.join(COMMANDS)}"
+        )
+    return names
+
+
+def add_family_options(p: argparse.ArgumentParser) -> None:
+    """The options of a family evaluation (`tofcut evaluate --family ... --seeds ...`)."""
+    g = p.add_argument_group("a family of lines (instead of CAPTURE --tracks --masks)")
+    which = g.add_mutually_exclusive_group()
+    which.add_argument("--family", metavar="NAME", help="the lines emulator:family:NAME:SEED")
+    which.add_argument(
+        "--scene", metavar="PATTERN",
+        help="the lines emulator:PATTERN, {seed} in it replaced by each seed (without it, the "
+        "same scene with each noise seed: --scene conveyor --seeds 0-3)",
+    )  # fmt: skip
+    g.add_argument("--seeds", type=parse_seeds, metavar="A-B", help="e.g. 1000-1039 or 0,2,5-7")
+    length = g.add_mutually_exclusive_group()
+    length.add_argument(
+        "--seconds",
+        type=float,
+        help=f"length of each line, scene time (default {DEFAULT_SECONDS:g})",
+    )
+    length.add_argument("--frames", type=int, help="length of each line in frames")
+    g.add_argument(
+        "--work", type=Path, metavar="DIR",
+        help="keep captures and runs here; complete captures recorded the same way are reused "
+        "(default: a temporary folder, removed at the end)",
+    )  # fmt: skip
+    g.add_argument(
+        "--trackers", type=parse_trackers, default=TRACKERS, metavar="NAMES",
+        help=f"comma-separated, of {', '.join(COMMANDS)} (default: all)",
+    )  # fmt: skip
+    g.add_argument("--workers", type=int, default=1, help="lines at once, in processes (1)")
+    g.add_argument("--out", type=Path, metavar="DIR", help="write evaluation.md and .json here")
+
+
+def wants_family(args: argparse.Namespace) -> bool:
+    """Whether the arguments ask for a family evaluation."""
+    return args.family is not None or args.scene is not None
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a family evaluation runs: which lines, how long, which trackers, how scored."""
+
+    pattern: str
+    """The emulator's scene name of a line, `{seed}` standing for its seed."""
+    seeds: tuple[int, ...]
+    trackers: tuple[str, ...]
+    work: Path
+    seconds: float = DEFAULT_SECONDS
+    frames: int | None = None
+    """Frames of each line; None: `seconds` of scene time at the scene's frame rate."""
+    gate: float = GATE_M
+    min_pixels: int = MIN_PIXELS
+    min_iou: float = MIN_IOU
+
+    def scene(self, seed: int) -> str:
+        return self.pattern.replace("{seed}", str(seed))
+
+    def source(self, seed: int) -> str:
+        return f"emulator:{self.scene(seed)}"
+
+    @property
+    def folder(self) -> Path:
+        """Where this pattern's lines are kept in `work`."""
+        slug = re.sub(r"[^\w.-]+", "-", self.pattern.replace("{seed}", "")).strip("-.")
+        return self.work / (slug or "scene")
+
+
+@dataclass(frozen=True)
+class TrackerRun:
+    """One tracker on one line: its scores, or what went wrong."""
+
+    tracker: str
+    scores: Scores | None
+    error: str | None = None
+    seconds: float = 0.0
+    """Wall time of the tracker's process."""
+
+    def to_json(self) -> dict[str, Any]:
+        return {"tracker": self.tracker, "error": self.error, "seconds": round(self.seconds, 2),
+                **({"scores": self.scores.to_json()} if self.scores else {})}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class LineResult:
+    """One line of the family: what it was, and each tracker's run on it."""
+
+    seed: int
+    source: str
+    scene: str = ""
+    """A summary of the line (scene, belt, objects), where known."""
+    frames: int = 0
+    runs: tuple[TrackerRun, ...] = ()
+    error: str | None = None
+    """What stopped the line before any tracker ran (recording it, say)."""
+
+    @property
+    def errors(self) -> list[str]:
+        """Everything that went wrong on this line, one line each."""
+        own = [self.error] if self.error else []
+        return own + [f"{r.tracker}: {r.error}" for r in self.runs if r.error]
+
+    def run(self, tracker: str) -> TrackerRun | None:
+        return next((r for r in self.runs if r.tracker == tracker), None)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"seed": self.seed, "source": self.source, "scene": self.scene,
+                "frames": self.frames, "error": self.error,
+                "runs": {r.tracker: r.to_json() for r in self.runs}}  # fmt: skip
+
+
+def _describe(exc: BaseException) -> str:
+    """An error as one line: our own errors by their message, others with their type."""
+    if isinstance(exc, LineFailed | TofcutError):
+        return str(exc)
+    return f"{type(exc).__name__}: {exc}".splitlines()[0]
+
+
+def _run(argv: list[str], log: Path, what: str) -> None:
+    """Run a step in its own process, its output to `log`; a failure says why in one line."""
+    with log.open("w", encoding="utf-8") as out:
+        code = subprocess.run(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                              check=False).returncode  # fmt: skip
+    if code != 0:
+        lines = [x.strip() for x in log.read_text(encoding="utf-8", errors="replace").splitlines()]
+        last = next((x for x in reversed(lines) if x), "no output")
+        raise LineFailed(f"{what} exited with {code}: {last} (log: {log})")
+
+
+def _line_facts(plan: Plan, seed: int) -> tuple[int, str]:
+    """The line's length in frames (from the emulated camera's frame rate) and its summary."""
+    source = scene_source(plan.scene(seed), seed)
+    registers = source.settings.registers if isinstance(source, SceneSource) else None
+    period_us = EmulatedCamera(source, realtime=False, registers=registers).frame_period_us
+    frames = plan.frames if plan.frames is not None else round(plan.seconds * 1e6 / period_us)
+    meta = scene_metadata(source)
+    summary = str(meta.get("scene", plan.scene(seed)))
+    if "belt" in meta:
+        summary += f", belt {meta['belt']['speed_mps']:.2f} m/s"
+    return max(1, frames), summary
+
+
+def _complete(capture: Path, marker: Path, wanted: dict[str, Any]) -> bool:
+    """Whether `capture` is whole, has its truth, and was recorded as `wanted` says."""
+    try:
+        if json.loads(marker.read_text(encoding="utf-8")) != wanted:
+            return False
+        with np.load(truth_path(capture)) as z:
+            truths = int(z["sequence"].size)
+        return bool(len(CaptureReader(capture)) == truths == wanted["frames"])
+    except (OSError, ValueError, KeyError, TofcutError):
+        return False
+
+
+def record_line(plan: Plan, seed: int, frames: int, folder: Path) -> Path:
+    """The line's bare capture in `folder`, recorded now unless a complete one is there.
+
+    It is recorded under another name and renamed when whole, so an interrupted recording
+    is never taken for a capture; `capture.json` says how it was recorded.
+    """
+    capture, marker = folder / "capture.tofcap", folder / "capture.json"
+    source = plan.source(seed)
+    wanted = {"source": source, "seed": seed, "frames": frames, "bare": True, "fast": True}
+    if _complete(capture, marker, wanted):
+        return capture
+    for p in (marker, capture, truth_path(capture)):
+        p.unlink(missing_ok=True)
+    part = folder / "capture.part.tofcap"
+    _run(_cli("record", source, "-o", str(part), "--frames", str(frames), "--fast",
+              "--seed", str(seed), "--bare"), folder / "record.log", "record")  # fmt: skip
+    if not truth_path(part).is_file():
+        raise LineFailed(f"record wrote no ground truth for {source}")
+    truth_path(part).replace(truth_path(capture))
+    part.replace(capture)
+    marker.write_text(json.dumps(wanted) + "\n", encoding="utf-8")
+    return capture
+
+
+def run_line(plan: Plan, seed: int) -> LineResult:
+    """Record (or reuse) one line, run every tracker on it, score each run both ways.
+
+    Whatever goes wrong is the line's error, or one tracker's, never an exception.
+    """
+    source = plan.source(seed)
+    folder = plan.folder / f"seed-{seed}"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        frames, summary = _line_facts(plan, seed)
+        capture = record_line(plan, seed, frames, folder)
+        truths = load_truth(truth_path(capture))
+    except Exception as exc:
+        return LineResult(seed, source, error=_describe(exc))
+    seen = {o.id for t in truths for o in t.objects if o.pixels >= plan.min_pixels}
+    summary += f", {len(seen)} objects"
+    runs = []
+    for tracker in plan.trackers:
+        tracks, masks = folder / f"{tracker}.tracks.jsonl", folder / f"{tracker}.masks.npz"
+        start = time.perf_counter()
+        try:
+            for p in (tracks, masks):
+                p.unlink(missing_ok=True)
+            _run(COMMANDS[tracker](capture, tracks, masks), folder / f"{tracker}.log", tracker)
+            elapsed = time.perf_counter() - start
+            files = read_run(capture, tracks, masks, truths)
+            scores = evaluate(files.truths, files.tracks, files.masks, files.rays, plan.gate,
+                              plan.min_pixels, plan.min_iou)  # fmt: skip
+            runs.append(TrackerRun(tracker, scores, seconds=elapsed))
+        except Exception as exc:
+            runs.append(TrackerRun(tracker, None, _describe(exc), time.perf_counter() - start))
+    return LineResult(seed, source, summary, frames, tuple(runs))
+
+
+def run_lines(plan: Plan, workers: int = 1, say: Callable[[str], None] = print) -> list[LineResult]:
+    """Every line of the plan, `workers` at a time in processes; in the order of the seeds."""
+    done: dict[int, LineResult] = {}
+
+    def finished(result: LineResult) -> None:
+        done[result.seed] = result
+        state = "; ".join(result.errors) if result.errors else "ok"
+        scores = ", ".join(
+            f"{r.tracker} MOTA {r.scores.by_centroid.mota:.3f}" for r in result.runs if r.scores
+        )
+        say(f"[{len(done)}/{len(plan.seeds)}] seed {result.seed}: {scores or '-'} ({state})")
+
+    if workers <= 1:
+        for seed in plan.seeds:
+            finished(run_line(plan, seed))
+    else:
+        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+            futures: dict[Future[LineResult], int] = {
+                pool.submit(run_line, plan, seed): seed for seed in plan.seeds
+            }
+            for future in as_completed(futures):
+                seed = futures[future]
+                try:
+                    finished(future.result())
+                except Exception as exc:  # the worker process itself died
+                    finished(LineResult(seed, plan.source(seed), error=f"worker: {_describe(exc)}"))
+    return [done[seed] for seed in plan.seeds]
+
+
+@dataclass(frozen=True)
+class FamilyScore:
+    """One tracker's scores by one matching over the lines it ran on."""
+
+    median_mota: float
+    median_idf1: float
+    p10_mota: float
+    """The 10th percentile of the lines' MOTA (linear interpolation): how bad the bad lines are."""
+    id_switches: int
+    """Summed over the lines."""
+
+    @classmethod
+    def of(cls, matchings: Sequence[Any]) -> FamilyScore:
+        mota = [m.mota for m in matchings]
+        return cls(
+            float(np.median(mota)), float(np.median([m.idf1 for m in matchings])),
+            float(np.percentile(mota, 10)), sum(m.id_switches for m in matchings),
+        )  # fmt: skip
+
+    def to_json(self) -> dict[str, float | int]:
+        return {"median_mota": self.median_mota, "median_idf1": self.median_idf1,
+                "p10_mota": self.p10_mota, "id_switches": self.id_switches}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Aggregate:
+    """One tracker over the family: both matchings and the mean of the lines' mask IoU."""
+
+    tracker: str
+    lines: int
+    """Lines it was scored on."""
+    of: int
+    """Lines in the family."""
+    by_centroid: FamilyScore | None
+    by_iou: FamilyScore | None
+    mean_mask_iou: float | None
+
+    @classmethod
+    def of_runs(cls, tracker: str, results: Sequence[LineResult]) -> Aggregate:
+        scores = [s for r in results if (run := r.run(tracker)) and (s := run.scores)]
+        if not scores:
+            return cls(tracker, 0, len(results), None, None, None)
+        return cls(
+            tracker, len(scores), len(results),
+            FamilyScore.of([s.by_centroid for s in scores]),
+            FamilyScore.of([s.by_iou for s in scores]),
+            float(np.mean([s.mask_iou for s in scores])),
+        )  # fmt: skip
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "tracker": self.tracker, "lines": self.lines, "of": self.of,
+            "by_centroid": self.by_centroid.to_json() if self.by_centroid else None,
+            "by_iou": self.by_iou.to_json() if self.by_iou else None,
+            "mean_mask_iou": self.mean_mask_iou,
+        }  # fmt: skip
+
+
+def _pair(a: float | None, b: float | None, signed: bool = False) -> str:
+    """`centroid / IoU`, three decimals; `—` for a missing number."""
+    fmt = "{:+.3f}" if signed else "{:.3f}"
+    return " / ".join("—" if x is None else fmt.format(x) for x in (a, b))
+
+
+def _difference(x: Aggregate, y: Aggregate) -> list[str]:
+    """The family table's row of what tracker `x` scores over `y`."""
+    row = [f"{x.tracker} − {y.tracker}", ""]
+    for field in ("median_mota", "median_idf1", "p10_mota"):
+        pair = [
+            getattr(a, field) - getattr(b, field) if a and b else None
+            for a, b in ((x.by_centroid, y.by_centroid), (x.by_iou, y.by_iou))
+        ]
+        row.append(_pair(pair[0], pair[1], signed=True))
+    xi, yi = x.mean_mask_iou, y.mean_mask_iou
+    return [*row, "", "—" if xi is None or yi is None else f"{xi - yi:+.3f}"]
+
+
+def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Aggregate]) -> str:
+    """The per-line table, the family table and the failed lines, as Markdown."""
+    trackers = plan.trackers
+    head = ["seed", "scene", "frames"]
+    for t in trackers:
+        head += [f"{t} MOTA", f"{t} IDF1", f"{t} switches", f"{t} mask IoU"]
+    rows = [head, ["---"] * len(head)]
+    for r in results:
+        row = [str(r.seed), r.scene or r.source, str(r.frames or "—")]
+        for t in trackers:
+            run = r.run(t)
+            s = run.scores if run else None
+            if s is None:
+                row += ["failed" if r.errors else "—", "", "", ""]
+                continue
+            c, i = s.by_centroid, s.by_iou
+            row += [_pair(c.mota, i.mota), _pair(c.idf1, i.idf1),
+                    f"{c.id_switches} / {i.id_switches}", f"{s.mask_iou:.3f}"]  # fmt: skip
+        rows.append(row)
+    out = ["## Lines", "", *("| " + " | ".join(x) + " |" for x in rows), "",
+           "MOTA, IDF1 and ID switches: by centroid / by mask IoU.", "",
+           "## Over the family", ""]  # fmt: skip
+    fam = [["tracker", "lines", "median MOTA", "median IDF1", "10th-percentile MOTA",
+            "ID switches", "mean mask IoU"]]  # fmt: skip
+    fam.append(["---"] * len(fam[0]))
+    for a in aggregates:
+        fc, fi = a.by_centroid, a.by_iou
+        if fc is None or fi is None or a.mean_mask_iou is None:
+            fam.append([a.tracker, f"{a.lines} of {a.of}", *["—"] * 5])
+            continue
+        fam.append([
+            a.tracker, f"{a.lines} of {a.of}", _pair(fc.median_mota, fi.median_mota),
+            _pair(fc.median_idf1, fi.median_idf1), _pair(fc.p10_mota, fi.p10_mota),
+            f"{fc.id_switches} / {fi.id_switches}", f"{a.mean_mask_iou:.3f}",
+        ])  # fmt: skip
+    if len(aggregates) >= 2:
+        fam.append(_difference(aggregates[0], aggregates[1]))
+    out += ["| " + " | ".join(x) + " |" for x in fam]
+    out += ["", "Each cell: by centroid / by mask IoU; ID switches summed over the lines."]
+    failed = [r for r in results if r.errors]
+    if failed:
+        out += ["", "## Failed lines", ""]
+        out += [f"- seed {r.seed} ({r.source}): {'; '.join(r.errors)}" for r in failed]
+    return "\n".join(out) + "\n"
+
+
+def report(plan: Plan, results: Sequence[LineResult]) -> tuple[str, dict[str, Any]]:
+    """The Markdown and the JSON document of a family's results."""
+    aggregates = [Aggregate.of_runs(t, results) for t in plan.trackers]
+    doc = {
+        "pattern": plan.pattern, "seeds": list(plan.seeds), "trackers": list(plan.trackers),
+        "frames": plan.frames, "seconds": plan.seconds if plan.frames is None else None,
+        "gate": plan.gate, "min_pixels": plan.min_pixels, "min_iou": plan.min_iou,
+        "lines": [r.to_json() for r in results],
+        "aggregate": [a.to_json() for a in aggregates],
+        "failed": [{"seed": r.seed, "source": r.source, "errors": r.errors}
+                   for r in results if r.errors],
+    }  # fmt: skip
+    return markdown(plan, results, aggregates), doc
+
+
+def run(args: argparse.Namespace) -> int:
+    """`tofcut evaluate --family/--scene ... --seeds ...`: 0 if every line ran, else 1."""
+    if not args.seeds:
+        raise SourceError("--family/--scene needs --seeds, e.g. --seeds 1000-1039")
+    if args.workers < 1 or (args.frames is not None and args.frames < 1):
+        raise SourceError("--workers and --frames must be at least 1")
+    if args.seconds is not None and args.seconds <= 0:
+        raise SourceError("--seconds must be more than 0")
+    if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0 or args.min_pixels < 1:
+        raise SourceError("--min-iou must be in (0, 1], --gate > 0 and --min-pixels >= 1")
+    pattern = f"family:{args.family}:{{seed}}" if args.family is not None else args.scene
+    work = args.work or Path(tempfile.mkdtemp(prefix="tofcut-evaluate-"))
+    plan = Plan(
+        pattern, args.seeds, args.trackers, work,
+        seconds=args.seconds if args.seconds is not None else DEFAULT_SECONDS,
+        frames=args.frames, gate=args.gate, min_pixels=args.min_pixels, min_iou=args.min_iou,
+    )  # fmt: skip
+    try:
+        print(
+            f"evaluating {', '.join(plan.trackers)} on {len(plan.seeds)} lines of "
+            f"emulator:{pattern}, {args.workers} at a time, in {plan.folder}",
+            flush=True,
+        )
+        results = run_lines(plan, args.workers, lambda text: print(text, flush=True))
+    finally:
+        if args.work is None:
+            shutil.rmtree(work, ignore_errors=True)
+    text, doc = report(plan, results)
+    print()
+    print(text, end="")
+    if args.out:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "evaluation.md").write_text(text, encoding="utf-8")
+        (args.out / "evaluation.json").write_text(json.dumps(doc, indent=2) + "\n", "utf-8")
+        print(f"wrote {args.out / 'evaluation.md'} and {args.out / 'evaluation.json'}")
+    if args.json:
+        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    failed = sum(1 for r in results if r.errors)
+    if failed:
+        print(
+            f"tofcut: error: {failed} of {len(results)} lines failed (see above)", file=sys.stderr
+        )
+        return 1
+    return 0

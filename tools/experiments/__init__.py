@@ -1,0 +1,1 @@
+"""Long experiments on the emulator: the paper's segmentation experiments and the soak."""

@@ -1,0 +1,306 @@
+"""Segmenting one target in one frame: `segment(frame, target, energy, params)`.
+
+    from tofcut.tracker.paper.segment import Energy, Target, segment
+    seg = segment(frame, Target(pixel=(88, 60)), Energy.RANGE_SMOOTH)
+    seg.mask, seg.energy, seg.seconds
+
+The energies are those of Arif et al. §4 (see `tofcut.tracker.paper.energy` for the formulas and
+units); the minimum is found by graph cut, by default with the fast exact solvers of
+`tofcut.tracker.paper.graphcut`, or with the full-frame reference graph on request.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from tofcut._types import F64
+from tofcut.driver.frames import Frame
+from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.paper import energy as en
+from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
+
+BOOL = npt.NDArray[np.bool_]
+
+
+class Energy(enum.Enum):
+    """Which energy of the paper to minimise."""
+
+    INTENSITY = "intensity"
+    """Eq. (5) with Potts smoothness: intensity only, the paper's baseline."""
+    RANGE_DATA = "range-data"
+    """Eq. (6): eq. (5) plus β‖D_p − µd‖² on the target label (3D distance from the camera)."""
+    IMAGE_PLANE = "image-plane"
+    """Malcolm et al.: eq. (5) plus β‖x_p − µx‖² on the target label, in image pixels."""
+    RANGE_SMOOTH = "range-smooth"
+    """§4.2 with eq. (7): one seed, 1/n to the background, range-weighted 8-neighbour edges."""
+    RANGE_INTENSITY_SMOOTH = "range-intensity-smooth"
+    """§4.2 with eq. (8): as RANGE_SMOOTH, edges weighted by range and intensity."""
+
+    @property
+    def seeded(self) -> bool:
+        """True for the §4.2 energies (a seed pixel, no data term)."""
+        return self in (Energy.RANGE_SMOOTH, Energy.RANGE_INTENSITY_SMOOTH)
+
+
+@dataclass(frozen=True)
+class Target:
+    """What to segment: a seed pixel inside it, its expected 3D position, or both.
+
+    The data-term energies need µd (RANGE_DATA) or the image centre µx (IMAGE_PLANE); a
+    missing one is taken from the other: µd as the 3D point at the pixel, µx as the pixel
+    whose ray passes closest to the point. The §4.2 energies need a seed pixel, likewise.
+    """
+
+    pixel: tuple[int, int] | None = None
+    """(u, v): column and row of a pixel on the target."""
+    point: tuple[float, float, float] | None = None
+    """Expected 3D position (camera frame, metres), e.g. the centroid predicted by a tracker."""
+
+    def __post_init__(self) -> None:
+        if self.pixel is None and self.point is None:
+            raise SegmentError("a target needs a seed pixel (u, v), a 3D point, or both")
+        if self.pixel is not None and (
+            len(self.pixel) != 2 or not all(isinstance(c, int | np.integer) for c in self.pixel)
+        ):
+            raise SegmentError(f"a target's pixel is two integers (u, v), not {self.pixel!r}")
+        if self.point is not None and (
+            len(self.point) != 3 or not all(math.isfinite(float(c)) for c in self.point)
+        ):
+            raise SegmentError(f"a target's point is three finite numbers, not {self.point!r}")
+
+
+@dataclass(frozen=True)
+class SegmentParams:
+    """Parameters of the energies; None means "estimate from the frame and the target".
+
+    Intensities are in the frame's own units (`Frame.intensity`); energies see them as grey
+    levels 255·I/I_ref (see `tofcut.tracker.paper.energy`), which is the unit of the weights below.
+    The defaults were set once for the emulator's scenes at 176×144 and are used unchanged for
+    every scene.
+    """
+
+    smoothness: float = 200.0
+    """Potts weight λ per axial neighbour pair (λ/√2 diagonally), grey levels²."""
+    beta_range: float = 2.0e5
+    """β of eq. (6), grey levels² per m²: a pixel of the target's intensity 0.13 m from µd,
+    against a background 60 grey levels darker, is neutral (2e5 · 0.134² ≈ 60²)."""
+    beta_image: float = 0.05
+    """β of the image-plane penalty, grey levels² per pixel² (the paper shows 0.05 and 0.2)."""
+    mu_target: float | None = None
+    """µt; default: the median valid intensity in the prior window around the target's pixel."""
+    mu_background: float | None = None
+    """µb; default: the median valid intensity farther than `background_margin_m` from µd."""
+    sigma_s: float | None = None
+    """σs of eqs. (7) and (8), metres; default: `sigma_s_factor` × the median distance between
+    valid neighbours' 3D points."""
+    sigma_i: float | None = None
+    """σi of eq. (8), frame intensity units; default: `sigma_i_factor` × the median intensity
+    step between valid neighbours."""
+    sigma_s_factor: float = 1.0
+    sigma_i_factor: float = 3.0
+    prior_window: int = 2
+    """Half-size of the window around the target's pixel that µt and µd are taken from."""
+    background_margin_m: float = 0.3
+    """Pixels this far from µd or farther estimate µb."""
+
+    def __post_init__(self) -> None:
+        for name in ("smoothness", "beta_range", "beta_image", "background_margin_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0.0):
+                raise SegmentError(f"{name} must be a finite number ≥ 0, not {value!r}")
+        for name in ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor"):
+            value = getattr(self, name)
+            if value is not None and not (math.isfinite(value) and value > 0.0):
+                raise SegmentError(f"{name} must be a finite number > 0, not {value!r}")
+        if self.prior_window < 0:
+            raise SegmentError(f"prior_window must be ≥ 0, not {self.prior_window}")
+
+
+@dataclass(frozen=True)
+class Model:
+    """The quantities an energy was built from, after estimation (grey levels are 255·I/I_ref)."""
+
+    intensity_ref: float
+    """I_ref: the frame intensity shown as grey level 255."""
+    pixel: tuple[int, int]
+    """(u, v): the seed (§4.2) or image centre µx (IMAGE_PLANE)."""
+    mu_d: tuple[float, float, float]
+    mu_target: float
+    """µt, grey levels."""
+    mu_background: float
+    """µb, grey levels."""
+    sigma_s: float
+    """metres."""
+    sigma_i: float
+    """grey levels."""
+
+
+@dataclass(frozen=True, eq=False)
+class Segmentation:
+    """The minimum found: the target's mask, its energy, and how long it took."""
+
+    mask: BOOL
+    """(H, W), True on the target."""
+    energy: float
+    """E of the mask: the minimum of the energy."""
+    seconds: float
+    """Wall time of `segment`: estimation, building the energy, and the cut."""
+    kind: Energy
+    model: Model
+    graph_nodes: int
+    """Nodes of the graph cut(s): pixels, or groups of merged pixels for §4.2 (H·W for the
+    reference solver)."""
+
+
+def segment(
+    frame: Frame,
+    target: Target,
+    energy: Energy,
+    params: SegmentParams | None = None,
+    *,
+    reference: bool = False,
+) -> Segmentation:
+    """Segment one target in one frame by minimising `energy` (full-frame graph if
+    `reference`, else the fast exact solver)."""
+    return segment_arrays(
+        frame.intensity, frame.xyz, frame.valid, target, energy, params, reference=reference
+    )
+
+
+def segment_arrays(
+    intensity: F64,
+    xyz: F64,
+    valid: BOOL,
+    target: Target,
+    energy: Energy,
+    params: SegmentParams | None = None,
+    *,
+    reference: bool = False,
+) -> Segmentation:
+    """`segment` on bare arrays: intensity (H, W), camera points (H, W, 3), valid (H, W)."""
+    start = time.perf_counter()
+    params = params or SegmentParams()
+    if not isinstance(energy, Energy):
+        raise SegmentError(f"energy must be an Energy, not {energy!r}")
+    _check_arrays(intensity, xyz, valid)
+    model = estimate_model(intensity, xyz, valid, target, energy, params)
+    problem = build_problem(intensity, xyz, valid, energy, params, model)
+    if reference:
+        solution = solve_reference(problem)
+    elif energy.seeded:
+        solution = solve_cropped(problem, model.pixel)
+    else:
+        solution = solve_reduced(problem)
+    value = en.energy_of(solution.labels, problem.cost1, problem.cost0, problem.weights)
+    return Segmentation(
+        solution.labels,
+        value,
+        time.perf_counter() - start,
+        energy,
+        model,
+        solution.graph_nodes,
+    )
+
+
+def _check_arrays(intensity: F64, xyz: F64, valid: BOOL) -> None:
+    if intensity.ndim != 2 or intensity.size == 0:
+        raise SegmentError(f"intensity must be a non-empty (H, W) array, not {intensity.shape}")
+    if valid.shape != intensity.shape or xyz.shape != (*intensity.shape, 3):
+        raise SegmentError(
+            f"intensity {intensity.shape}, valid {valid.shape} and xyz {xyz.shape} do not "
+            "match (H, W), (H, W), (H, W, 3)"
+        )
+    if not valid.any():
+        raise SegmentError("the frame has no valid pixel")
+
+
+def estimate_model(
+    intensity: F64,
+    xyz: F64,
+    valid: BOOL,
+    target: Target,
+    energy: Energy,
+    params: SegmentParams,
+) -> Model:
+    """Fill in µx or the seed, µd, µt, µb, σs and σi from the frame and the target."""
+    h, w = valid.shape
+    ref = en.intensity_reference(intensity, valid)
+    scale = 255.0 / ref
+    grey = intensity * scale
+    window = params.prior_window
+    if target.pixel is not None:
+        u, v = int(target.pixel[0]), int(target.pixel[1])
+        if not (0 <= u < w and 0 <= v < h):
+            raise SegmentError(
+                f"the target's pixel (u, v) = ({u}, {v}) is outside the {w}×{h} frame"
+            )
+        if energy.seeded and not valid[v, u]:
+            raise SegmentError(f"the seed pixel ({u}, {v}) is invalid (saturated or too dark)")
+    else:
+        assert target.point is not None
+        u, v = en.nearest_pixel(xyz, valid, np.asarray(target.point, dtype=np.float64))
+    if target.point is not None:
+        mu_d = np.asarray(target.point, dtype=np.float64)
+    else:
+        near = en.window_median_point(xyz, valid, (u, v), window)
+        if near is None:
+            raise SegmentError(f"no valid pixel near the target's pixel ({u}, {v})")
+        mu_d = near
+    if params.mu_target is not None:
+        mu_t = params.mu_target * scale
+    else:
+        near_t = en.window_median(grey, valid, (u, v), window)
+        if near_t is None:
+            raise SegmentError(f"no valid pixel near the target's pixel ({u}, {v})")
+        mu_t = near_t
+    if params.mu_background is not None:
+        mu_b = params.mu_background * scale
+    else:
+        mu_b = en.background_intensity(grey, valid, xyz, mu_d, params.background_margin_m)
+    sigma_s = params.sigma_s
+    sigma_i = params.sigma_i * scale if params.sigma_i is not None else None
+    if energy.seeded and sigma_s is None:
+        sigma_s = params.sigma_s_factor * en.neighbour_distance(xyz, valid)
+    if energy is Energy.RANGE_INTENSITY_SMOOTH and sigma_i is None:
+        sigma_i = params.sigma_i_factor * en.neighbour_step(grey, valid)
+    return Model(
+        ref,
+        (u, v),
+        (float(mu_d[0]), float(mu_d[1]), float(mu_d[2])),
+        float(mu_t),
+        float(mu_b),
+        max(float(sigma_s or 0.0), 1e-9),
+        max(float(sigma_i or 0.0), 1e-9),
+    )
+
+
+def build_problem(
+    intensity: F64,
+    xyz: F64,
+    valid: BOOL,
+    energy: Energy,
+    params: SegmentParams,
+    model: Model,
+) -> Problem:
+    """The unary costs and edge weights of `energy` for this frame."""
+    grey = intensity * (255.0 / model.intensity_ref)
+    if energy.seeded:
+        cost1, cost0 = en.seed_costs(valid.shape, model.pixel)
+        if energy is Energy.RANGE_SMOOTH:
+            weights = en.range_weights(xyz, valid, model.sigma_s)
+        else:
+            weights = en.range_weights(xyz, valid, model.sigma_s, grey, model.sigma_i)
+        return Problem(cost1, cost0, weights)
+    cost1, cost0 = en.intensity_costs(grey, valid, model.mu_target, model.mu_background)
+    if energy is Energy.RANGE_DATA:
+        cost1 = cost1 + en.range_penalty(xyz, valid, np.array(model.mu_d), params.beta_range)
+    elif energy is Energy.IMAGE_PLANE:
+        cost1 = cost1 + en.image_penalty(valid, model.pixel, params.beta_image)
+    weights = en.potts_weights(valid.shape, params.smoothness)
+    return Problem(cost1, cost0, weights, en.potts_bound(params.smoothness))
