@@ -57,8 +57,9 @@ def open(
     `emulator[:SCENE]` (a built-in scene, a scene file or `family:conveyor:N`, set up with
     the scene's own camera settings) or `run.tofcap` (a capture, replayed). Each has
     `frames()` and is a context manager; `seed` and `realtime` are the emulator's,
-    `reconnect` a camera's (its stream outlives unplugs and stalls). A name that is none of
-    these is a `TofcutError`."""
+    `reconnect` a camera's (its stream outlives unplugs and stalls). A real-time emulator
+    runs in a process of its own (`tofcut.sim.process.EmulatorProcess`), which ends when the
+    camera is collected or Python exits. A name that is none of these is a `TofcutError`."""
     from tofcut.tools.pipeline.sources import SourceSpec, open_source
 
     return open_source(

@@ -21,6 +21,7 @@ import time
 from collections import OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -50,7 +51,7 @@ from tofcut.driver.protocol import (
     pack_header,
     pack_info,
 )
-from tofcut.sim.source import Exposure, TapSource
+from tofcut.sim.source import Exposure, Rendered, TapSource
 
 READOUT_US = 200
 """Time between the end of one tap's integration and the start of the next."""
@@ -77,11 +78,48 @@ class BulkOverflow(Exception):
     """The host asked for a length that is not a whole number of packets and data overran it."""
 
 
+class EmulatedDevice(Protocol):
+    """An emulated camera as the bus and the tests use it: an `EmulatedCamera`, or its proxy
+    in a process of its own (`tofcut.sim.process.EmulatorProcess`)."""
+
+    @property
+    def info(self) -> DeviceInfo: ...
+    @property
+    def realtime(self) -> bool: ...
+    @property
+    def source(self) -> TapSource | None: ...
+    @property
+    def frames_sent(self) -> int: ...
+    @property
+    def frames_dropped(self) -> int: ...
+    @property
+    def boots(self) -> int: ...
+    @property
+    def frame_period_us(self) -> int: ...
+    def now_us(self) -> int: ...
+    def control_in(self, request: int, value: int, index: int, length: int) -> bytes: ...
+    def control_out(self, request: int, value: int, index: int, data: bytes) -> None: ...
+    def bulk_read_into(self, out: memoryview, timeout_ms: int) -> int: ...
+    def clear_halt(self) -> None: ...
+    def usb_reset(self) -> None: ...
+    def attach(self) -> None: ...
+    def detach(self, *, power_loss: bool = True) -> None: ...
+    def pulse_trigger_input(self) -> None: ...
+    def damage_next(self, kind: str = "payload", count: int = 1) -> None: ...
+    def stall_endpoint(self, count: int = 1, after_packets: int = 0) -> None: ...
+    def time_out_next(self, count: int = 1) -> None: ...
+    def hang(self) -> None: ...
+    def overflow_fifo(self, frames: int) -> None: ...
+    def truth(self, sequence: int) -> object | None: ...
+
+
 @dataclass
 class _Queued:
     sequence: int
     t0_us: int
     flags: int
+    wire: bytes | None = None
+    """The frame rendered and on its way to the wire (rendering ahead), else None."""
 
 
 class EmulatedCamera:
@@ -92,6 +130,12 @@ class EmulatedCamera:
     The device clock (`now_us`) is then virtual too: it starts at 0 at power-on and stands at
     the end of the last frame's exposure, so no host time leaks into a fast run and two runs
     of one scene and seed give the same frames, bit for bit.
+
+    `render_ahead` (real time only) renders each frame on a thread of the camera's own as
+    its exposure ends, as a real sensor fills its FIFO whether or not the host is reading;
+    without it a frame is rendered when the host reads it. The emulator's own process uses
+    it, so that a host late to ask does not make the renderer late too. The thread lives as
+    long as the process: not for a camera made and dropped in a long-lived one.
     """
 
     def __init__(
@@ -104,6 +148,7 @@ class EmulatedCamera:
         registers: dict[Register, int] | None = None,
         fifo_frames: int = FIFO_FRAMES,
         monotonic: Callable[[], float] = time.monotonic,
+        render_ahead: bool = False,
     ) -> None:
         self.source = source
         calib = source.calibration
@@ -152,6 +197,9 @@ class EmulatedCamera:
         self._hung = False
         self.boots = 1
         """Times the firmware started: power-on, then once per power cycle or USB reset."""
+        self.render_ahead = render_ahead and realtime
+        if self.render_ahead:
+            threading.Thread(target=self._sensor, name="tofcut-sensor", daemon=True).start()
 
     # --- timing ---------------------------------------------------------------------------
 
@@ -262,6 +310,7 @@ class EmulatedCamera:
     def _restart_clock(self) -> None:
         self._clock_start_us = self.now_us()
         self._clock_index = 0
+        self._lock.notify_all()  # a sensor rendering ahead waits for the next frame's end
 
     # --- the frame clock and the FIFO -----------------------------------------------------
 
@@ -455,8 +504,10 @@ class EmulatedCamera:
                 if self._tx_pos < len(self._tx):
                     return self._send_piece(size)
                 self._catch_up()
-                if self._streaming and self._fifo:
-                    self._tx = self._apply_damage(self._build(self._fifo.popleft()))
+                if self._streaming and self._fifo and not self._rendering(self._fifo[0]):
+                    queued = self._fifo.popleft()
+                    wire = queued.wire if queued.wire is not None else self._build(queued)
+                    self._tx = self._apply_damage(wire)
                     self._tx_pos = 0
                     continue
                 wait = deadline - self._monotonic()
@@ -468,6 +519,12 @@ class EmulatedCamera:
                 if due is not None:
                     wait = min(wait, max(0.0, (due - self.now_us()) / 1e6))
                 self._lock.wait(wait)
+
+    def bulk_read_into(self, out: memoryview, timeout_ms: int) -> int:
+        """One bulk IN transfer of up to `len(out)` bytes, landed in `out`."""
+        piece = self.bulk_read(len(out), timeout_ms)
+        out[: len(piece)] = piece
+        return len(piece)
 
     def _send_piece(self, size: int) -> bytes:
         left = len(self._tx) - self._tx_pos
@@ -488,17 +545,53 @@ class EmulatedCamera:
             self.frames_sent += 1
         return piece
 
-    def _build(self, queued: _Queued) -> bytes:
-        """Render one queued frame and put it on the wire."""
-        regs = self._regs
-        exposure = Exposure(
+    def _rendering(self, queued: _Queued) -> bool:
+        """Whether the sensor's thread is still to render this frame (rendering ahead)."""
+        return self.render_ahead and queued.wire is None
+
+    def _sensor(self) -> None:
+        """Rendering ahead: take every frame as its exposure ends and render it into the FIFO.
+
+        Rendering runs outside the lock (a bulk read of a frame rendered already, or a control
+        request, does not wait for it); a frame the FIFO lost meanwhile (the stream stopped,
+        the camera lost power) is thrown away.
+        """
+        with self._lock:
+            while True:
+                queued = None
+                if self._powered and self._attached and not self._hung:
+                    self._catch_up()
+                    queued = next((q for q in self._fifo if q.wire is None), None)
+                if queued is None:
+                    due = self._next_due_us()
+                    wait = None if due is None else max(0.0, (due - self.now_us()) / 1e6)
+                    self._lock.wait(wait)
+                    continue
+                boots, exposure, header = self.boots, self._exposure(queued), self._regs.copy()
+                self._lock.release()
+                try:
+                    rendered = self.source.render(exposure)
+                finally:
+                    self._lock.acquire()
+                if self.boots == boots and any(q is queued for q in self._fifo):
+                    queued.wire = self._wire(queued, rendered, header)
+                    self._lock.notify_all()
+
+    def _exposure(self, queued: _Queued) -> Exposure:
+        return Exposure(
             sequence=queued.sequence,
             t0_s=queued.t0_us / 1e6,
             tap_interval_s=self.tap_interval_us / 1e6,
-            integration_s=integration_us(regs[Register.INTEGRATION]) / 1e6,
-            mod_code=regs[Register.MOD_FREQ],
+            integration_s=integration_us(self._regs[Register.INTEGRATION]) / 1e6,
+            mod_code=self._regs[Register.MOD_FREQ],
         )
-        rendered = self.source.render(exposure)
+
+    def _build(self, queued: _Queued) -> bytes:
+        """Render one queued frame and put it on the wire."""
+        return self._wire(queued, self.source.render(self._exposure(queued)), self._regs)
+
+    def _wire(self, queued: _Queued, rendered: Rendered, regs: dict[Register, int]) -> bytes:
+        """A rendered frame as it goes on the wire: header and taps."""
         taps = np.ascontiguousarray(rendered.taps, dtype="<u2")
         self._keep_truth(queued.sequence, rendered.truth)
         flags = queued.flags
@@ -516,7 +609,7 @@ class EmulatedCamera:
             integration=regs[Register.INTEGRATION],
             flags=flags,
             temperature_c=self.temperature_c,
-            tap_interval_us=self.tap_interval_us,
+            tap_interval_us=integration_us(regs[Register.INTEGRATION]) + READOUT_US,
             payload_size=len(payload),
             payload_crc=crc32(payload),
         )

@@ -17,11 +17,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from tofcut.driver.camera import Camera
-from tofcut.sim.device import EmulatedCamera
+from tofcut.sim.device import EmulatedCamera, EmulatedDevice
 from tofcut.sim.pattern import TestPattern
 from tofcut.sim.usb_backend import EmulatedBackend
 
-Inject = Callable[[EmulatedBackend, EmulatedCamera], None]
+Inject = Callable[[EmulatedBackend, EmulatedDevice], None]
 
 
 def _later(seconds: float, action: Callable[[], object]) -> None:
@@ -31,7 +31,7 @@ def _later(seconds: float, action: Callable[[], object]) -> None:
 
 
 def _unplug_for(seconds: float) -> Inject:
-    def inject(bus: EmulatedBackend, emu: EmulatedCamera) -> None:
+    def inject(bus: EmulatedBackend, emu: EmulatedDevice) -> None:
         bus.unplug(emu)
         _later(seconds, lambda: bus.replug(emu))
 
@@ -39,7 +39,7 @@ def _unplug_for(seconds: float) -> Inject:
 
 
 def _taken_on_return(back_s: float, held_s: float) -> Inject:
-    def inject(bus: EmulatedBackend, emu: EmulatedCamera) -> None:
+    def inject(bus: EmulatedBackend, emu: EmulatedDevice) -> None:
         bus.unplug(emu)
 
         def back_but_taken() -> None:

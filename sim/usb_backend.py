@@ -3,6 +3,9 @@
     backend = EmulatedBackend([EmulatedCamera(source)])
     usb.core.find(idVendor=0x0852, backend=backend)     # or Camera.open(backend=backend)
 
+A camera on the bus is an `EmulatedCamera`, or one in a process of its own
+(`tofcut.sim.process.EmulatorProcess`): the bus and the driver above it cannot tell.
+
 Everything above pyusb — the driver — runs unchanged: descriptors are parsed by pyusb,
 string descriptors are read with GET_DESCRIPTOR, and device errors surface as pyusb's
 `USBError` with the errno libusb would give (EPIPE for a stall, ETIMEDOUT, ENODEV, EBUSY).
@@ -31,7 +34,7 @@ from tofcut.driver.protocol import (
     PRODUCT_ID,
     VENDOR_ID,
 )
-from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
+from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedDevice, Stall
 
 _GET_DESCRIPTOR = 0x06
 _DESC_DEVICE, _DESC_CONFIG, _DESC_STRING = 1, 2, 3
@@ -51,7 +54,7 @@ class _Descriptor:
 class Slot:
     """One camera plugged into the emulated bus."""
 
-    camera: EmulatedCamera
+    camera: EmulatedDevice
     bus: int
     address: int
     vendor_id: int = VENDOR_ID
@@ -79,7 +82,7 @@ def _usb_error(code: int, text: str) -> usb.core.USBError:
 class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
     """A bus of emulated cameras behind pyusb's backend interface."""
 
-    def __init__(self, cameras: Iterable[EmulatedCamera] = (), bus: int = 1) -> None:
+    def __init__(self, cameras: Iterable[EmulatedDevice] = (), bus: int = 1) -> None:
         super().__init__()
         self._bus = bus
         self._lock = threading.Lock()
@@ -93,7 +96,7 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
 
     def plug(
         self,
-        camera: EmulatedCamera,
+        camera: EmulatedDevice,
         vendor_id: int = VENDOR_ID,
         product_id: int = PRODUCT_ID,
         *,
@@ -115,7 +118,7 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
         camera.attach()
         return slot
 
-    def unplug(self, camera: EmulatedCamera, *, power_loss: bool = True) -> None:
+    def unplug(self, camera: EmulatedDevice, *, power_loss: bool = True) -> None:
         """Pull the cable: open handles fail with ENODEV from now on. With `power_loss` (a
         bus-powered camera) the camera reboots when it is plugged in again."""
         with self._lock:
@@ -125,12 +128,12 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
             self._slots = [s for s in self._slots if s.plugged]
         camera.detach(power_loss=power_loss)
 
-    def replug(self, camera: EmulatedCamera, *, address: int | None = None) -> Slot:
+    def replug(self, camera: EmulatedDevice, *, address: int | None = None) -> Slot:
         """Plug an unplugged camera in again, with the USB ids it had."""
         last = self._last_slot[id(camera)]
         return self.plug(camera, last.vendor_id, last.product_id, address=address)
 
-    def hold(self, camera: EmulatedCamera) -> None:
+    def hold(self, camera: EmulatedDevice) -> None:
         """Another program claims the camera's interface: our claims fail with EBUSY."""
         slot = self._slot_of(camera)
         with self._lock:
@@ -138,14 +141,14 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
                 raise _usb_error(errno.EBUSY, "Resource busy")
             slot.claimed_by = _OtherProgram()
 
-    def release(self, camera: EmulatedCamera) -> None:
+    def release(self, camera: EmulatedDevice) -> None:
         """The other program lets go of the camera."""
         slot = self._slot_of(camera)
         with self._lock:
             if isinstance(slot.claimed_by, _OtherProgram):
                 slot.claimed_by = None
 
-    def _slot_of(self, camera: EmulatedCamera) -> Slot:
+    def _slot_of(self, camera: EmulatedDevice) -> Slot:
         with self._lock:
             for slot in self._slots:
                 if slot.camera is camera:
@@ -153,7 +156,7 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
         raise ValueError("that camera is not plugged in")
 
     @property
-    def cameras(self) -> list[EmulatedCamera]:
+    def cameras(self) -> list[EmulatedDevice]:
         return [s.camera for s in self._slots]
 
     # --- IBackend -------------------------------------------------------------------------
@@ -331,9 +334,8 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
         self._check_claimed(dev_handle)
         if ep != ENDPOINT_FRAMES:
             raise _usb_error(errno.EPIPE, "no such endpoint")
-        size = len(buff) * buff.itemsize
         try:
-            piece = slot.camera.bulk_read(size, timeout)
+            n = slot.camera.bulk_read_into(memoryview(buff).cast("B"), timeout)
         except BulkTimeout:
             raise _usb_error(errno.ETIMEDOUT, "Operation timed out") from None
         except BulkOverflow:
@@ -345,8 +347,7 @@ class EmulatedBackend(usb.backend.IBackend):  # type: ignore[misc]
                 errno.ENODEV, "No such device (it may have been disconnected)"
             ) from None
         self._check(slot)  # unplugged while we waited
-        memoryview(buff).cast("B")[: len(piece)] = piece
-        return len(piece)
+        return n
 
     # --- helpers --------------------------------------------------------------------------
 

@@ -21,6 +21,7 @@ from typing import NoReturn
 
 from tofcut import __version__
 from tofcut.driver.errors import TofcutError
+from tofcut.tools.commands import startup
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "devices": ("tofcut.tools.commands.devices", "list cameras (serial, firmware, resolution)"),
@@ -195,8 +196,14 @@ def describe_error(exc: BaseException) -> tuple[str, int]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    setup_logging(*global_options(argv))
-    args = build_parser(argv).parse_args(argv)
+    verbose, quiet = global_options(argv)
+    setup_logging(verbose, quiet)
+    startup.begin(command_in(argv), quiet=quiet)  # importing a command can take seconds
+    try:
+        parser = build_parser(argv)
+    finally:
+        startup.current().done()
+    args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -84,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
                 device.configure(asked)
         estimate = find_belt(device.frames(), args.seconds)
     finally:
-        device.close()
+        opened.close()
     for line in report(estimate, str(args.source)):
         print(line)
     if estimate.belt is None:

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(info_json(args), indent=2))
         return 0
-    opened = open_source(args.source, seed=args.seed)
+    opened = open_source(args.source, seed=args.seed, own_process=False)
     with opened.device as dev:
         info = dev.info
         print(
@@ -109,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
 
 def info_json(args: argparse.Namespace) -> dict[str, Any]:
     """What `info --json` prints (shape in `JSON_HELP`)."""
-    opened = open_source(args.source, seed=args.seed)
+    opened = open_source(args.source, seed=args.seed, own_process=False)
     with opened.device as dev:
         info = dev.info
         out: dict[str, Any] = {

@@ -14,6 +14,7 @@ lean on the emulator's knowledge of the scene; the ground truth still goes besid
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 import time
 from typing import Any
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)
-    with cam:
+    with contextlib.closing(opened):  # the camera, and the emulator's process if any
         asked = config_from_args(args, cam.config)
         if asked is not None:
             cam.configure(asked)

@@ -141,7 +141,7 @@ def soak(args: argparse.Namespace) -> int:
             if line is not None:
                 line.close()
     finally:
-        camera.close()
+        opened.close()
 
 
 def _soak(

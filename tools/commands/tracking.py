@@ -33,13 +33,19 @@ from tofcut.tools.commands.arguments import (
 from tofcut.tools.commands.ctrl_c import CtrlC
 from tofcut.tools.commands.options import config_from_args
 from tofcut.tools.commands.progress import Progress
+from tofcut.tools.commands.startup import current as startup
 from tofcut.tools.pipeline.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.pipeline.conveyor_line import ConveyorLine, open_conveyor
+from tofcut.tools.pipeline.keeping_up import PaceWatch
 from tofcut.tools.pipeline.losses import describe_losses, event_level
 from tofcut.tools.pipeline.mots import DEFORMABLE_CLASS, RIGID_CLASS, MotsWriter
 from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
 from tofcut.tools.pipeline.rerun_sink import NullSink, RerunSink
-from tofcut.tools.pipeline.rerun_target import add_rerun_options, wait_while_serving
+from tofcut.tools.pipeline.rerun_target import (
+    add_rerun_options,
+    check_viewer,
+    wait_while_serving,
+)
 from tofcut.tools.pipeline.run import (
     EventRelay,
     LiveFeed,
@@ -110,15 +116,19 @@ def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None
 
 
 class StatusLine:
-    """The live one-line status on stderr: fps, tracks, losses, latency."""
+    """The live one-line status on stderr: fps, tracks, losses, latency; and while the
+    tracker learns the empty scene, that it does."""
 
-    def __init__(self, progress: Progress) -> None:
+    def __init__(self, progress: Progress, tracker: Tracker | None = None) -> None:
         self._progress = progress
+        self._tracker = tracker
 
     def write(self, tracked: TrackedFrame, status: PipelineStatus) -> None:
+        background = None if self._tracker is None else self._tracker.background
+        learning = "learning the scene  " if background is not None and not background.ready else ""
         self._progress.update(
             status.frames,
-            f"{status.fps:5.1f} fps  {status.tracks} tracks  {status.dropped} lost  "
+            f"{learning}{status.fps:5.1f} fps  {status.tracks} tracks  {status.dropped} lost  "
             f"latency {status.latency_s * 1e3:.1f} ms",
         )
 
@@ -128,16 +138,21 @@ class StatusLine:
 
 def track(args: argparse.Namespace, *, live: bool) -> int:
     """Run the tracker on the source the arguments name."""
+    check_viewer(args)  # before anything slow: a viewer asked for must be there
     events = EventRelay()
-    opened = open_source(
-        args.source, realtime=not args.fast, seed=args.seed,
-        amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
-    )  # fmt: skip
-    device = opened.device
+    what = {"emulator": "starting the emulated camera", "capture": "opening the capture"}
+    startup().step(what.get(args.source.kind, "opening the camera"))
+    try:
+        opened = open_source(
+            args.source, realtime=not args.fast, seed=args.seed,
+            amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
+        )  # fmt: skip
+    finally:
+        startup().done()
     try:
         return _track(args, live, opened, events)
     finally:
-        device.close()
+        opened.close()
 
 
 def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay) -> int:
@@ -147,9 +162,16 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         raise SourceError("the conveyor options need a live camera, not a capture")
     resolution = resolve_run_belt(args, opened)
     belt = resolution.belt
-    tracker = Tracker(
-        TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
+    startup().step(
+        "loading the tracker",
+        slow="compiling the tracker (a first run only: it is cached after)",
     )
+    try:
+        tracker = Tracker(
+            TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
+        )
+    finally:
+        startup().done()
     targets = list(args.target_pixel)
     if args.scene_target:
         seed = scene_target(meta)
@@ -328,8 +350,15 @@ def _run(
         f"camera {device.serial} ({args.source}): {device.config.describe()}",
         file=sys.stderr if args.stdout else sys.stdout,
     )
-    outputs.append(StatusLine(Progress(None, "live")))
+    outputs.append(StatusLine(Progress(None, "live"), tracker))
     feed = LiveFeed(device).start()
+    rate = device.config.frame_rate
+    outputs.append(
+        PaceWatch(
+            lambda: device.stats, lambda: feed.dropped, time.monotonic, rate,
+            emulated=args.source.kind == "emulator",
+        )
+    )  # fmt: skip
     try:
         return run(
             feed, device.demodulate, tracker, outputs, stats=lambda: device.stats,

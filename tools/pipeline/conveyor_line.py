@@ -33,7 +33,7 @@ from tofcut.driver.conveyor.rejects import RejectEvent, RejectScheduler
 from tofcut.driver.errors import ConfigError
 from tofcut.driver.frames import Frame
 from tofcut.sim.conveyor import EmulatedConveyor, for_scene
-from tofcut.sim.device import EmulatedCamera
+from tofcut.sim.device import EmulatedDevice
 from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene import Scene
@@ -242,7 +242,7 @@ def open_conveyor(
     return line
 
 
-def _device_clock_offset_ns(camera: EmulatedCamera) -> int:
+def _device_clock_offset_ns(camera: EmulatedDevice) -> int:
     """Host time minus an emulated camera's device time (both run on the host's clocks)."""
     before = time.time_ns()
     device_ns = camera.now_us() * 1000

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import ipaddress
+import socket
 import sys
 import urllib.parse
 from dataclasses import dataclass
@@ -38,12 +39,17 @@ import rerun as rr
 import rerun.blueprint as rrb
 import rerun_bindings as bindings
 
+from tofcut.driver.errors import TofcutError
+
 TargetKind = Literal["save", "spawn", "connect", "serve", "stdout", "none"]
 LOOPBACK = "127.0.0.1"
 """Where `--serve` listens unless `--bind` says otherwise: this machine only."""
 GRPC_PORT = 9876
 """Rerun's gRPC port (`rerun+http://HOST:9876/proxy`)."""
 WEB_VIEWER_PORT = 9090
+DEFAULT_VIEWER_URL = f"rerun+http://{LOOPBACK}:{GRPC_PORT}/proxy"
+"""Where `--connect` streams without `--url` (rerun's default)."""
+CONNECT_TIMEOUT_S = 2.0
 MB = 1_000_000
 SEGMENT_MB = 256.0
 """Default size at which a saved recording goes on in a new file (0: no bound)."""
@@ -178,6 +184,7 @@ class RerunTarget:
         if self.kind == "spawn":
             rec.spawn(default_blueprint=blueprint)
         elif self.kind == "connect":
+            viewer_reachable(self.url or DEFAULT_VIEWER_URL)
             rec.connect_grpc(self.url, default_blueprint=blueprint)
         elif self.kind == "serve":
             sink = rr.GrpcServerSink(bind_ip=self.bind, port=self.port)
@@ -312,6 +319,38 @@ def target_from_args(args: argparse.Namespace, now: dt.datetime | None = None) -
     if args.headless:
         return RerunTarget("none")
     return RerunTarget.save(default_recording_path(now), segment_bytes, segment_s)
+
+
+class ViewerUnreachable(TofcutError):
+    """`--connect`: no rerun viewer listens where the recording was to go."""
+
+
+def viewer_reachable(url: str) -> None:
+    """Raise `ViewerUnreachable` unless something accepts a connection at `url`'s address
+    (rerun itself would log an error and drop every frame, and the run would seem fine)."""
+    parts = urllib.parse.urlsplit(url)
+    try:
+        host, port = parts.hostname, parts.port or GRPC_PORT
+    except ValueError:
+        raise ViewerUnreachable(f"--url {url!r} is not a rerun viewer's address") from None
+    if host is None:
+        raise ViewerUnreachable(f"--url {url!r} names no host")
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ViewerUnreachable(
+            f"no rerun viewer at {url} ({exc.strerror or exc}): start one with 'rerun', "
+            "or leave out --connect"
+        ) from None
+
+
+def check_viewer(args: argparse.Namespace) -> None:
+    """With `--connect` or `--url` (and no output that takes precedence), fail now, in one
+    line, unless a viewer is there: before a run that would stream to nothing."""
+    if getattr(args, "stdout", False) or getattr(args, "serve", False):
+        return
+    if getattr(args, "connect", False) or getattr(args, "url", None) is not None:
+        viewer_reachable(args.url or DEFAULT_VIEWER_URL)
 
 
 def wait_while_serving(args: argparse.Namespace) -> None:

@@ -6,6 +6,8 @@ The emulator is chosen here and nowhere else: it is a pyusb backend handed to th
 
 from __future__ import annotations
 
+import functools
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,8 +21,9 @@ from tofcut.driver.errors import ConfigError, TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import MAX_SENSOR_SIDE
 from tofcut.sim.catalog import open_scene
-from tofcut.sim.device import EmulatedCamera
+from tofcut.sim.device import EmulatedCamera, EmulatedDevice
 from tofcut.sim.pattern import TestPattern
+from tofcut.sim.process import EmulatorProcess
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, UnknownScene
 from tofcut.sim.source import TapSource
@@ -61,13 +64,18 @@ class SourceSpec:
         return self.kind if self.arg is None else f"{self.kind}:{self.arg}"
 
 
-def scene_source(name: str | None, seed: int = 0) -> TapSource:
-    """The emulator's scene: a built-in name, a scene file, or the small test pattern."""
+def scene_recipe(name: str | None, seed: int = 0) -> Callable[[], TapSource]:
+    """What makes the emulator's scene (picklable: an emulator process makes its own)."""
     name = name or DEFAULT_SCENE
     if name == TEST_PATTERN:
-        return TestPattern(176, 144, seed=seed)
+        return functools.partial(TestPattern, 176, 144, seed=seed)
+    return functools.partial(open_scene, name, seed)
+
+
+def scene_source(name: str | None, seed: int = 0) -> TapSource:
+    """The emulator's scene: a built-in name, a scene file, or the small test pattern."""
     try:
-        return open_scene(name, seed)
+        return scene_recipe(name, seed)()
     except UnknownScene as exc:
         raise SourceError(f"{exc}, or {TEST_PATTERN}") from None
     except SceneError as exc:
@@ -79,11 +87,20 @@ class Opened:
     """An opened source, and the emulated device behind it when there is one (ground truth)."""
 
     device: Camera | CaptureReader
-    emulator: EmulatedCamera | None = None
+    emulator: EmulatedDevice | None = None
+    """The emulated camera, in this process or in its own (`EmulatorProcess`)."""
     metadata: dict[str, Any] = field(default_factory=dict)
     """What the emulated scene tells the tracker (belt, marked target); kept in captures."""
     bus: EmulatedBackend | None = None
     """The emulated camera's bus (to unplug and replug it: the soak's faults)."""
+
+    def close(self) -> None:
+        """Close the device, then end the emulator's process if it has one."""
+        try:
+            self.device.close()
+        finally:
+            if isinstance(self.emulator, EmulatorProcess):
+                self.emulator.close()
 
 
 def scene_metadata(source: TapSource) -> dict[str, Any]:
@@ -139,6 +156,7 @@ def open_source(
     reconnect: bool = False,
     on_event: Callable[[DeviceEvent], None] | None = None,
     virtual_host_clock: bool = False,
+    own_process: bool | None = None,
 ) -> Opened:
     """Open a USB or emulated camera, or a capture that replays like one.
 
@@ -147,7 +165,11 @@ def open_source(
     `virtual_host_clock`, an emulated camera that is not `realtime` stamps frames with its
     own virtual clock (from `FAST_HOST_EPOCH_NS`) instead of the host's, so that a fast run
     is the same, bit for bit, every time; not for a run with a conveyor link, whose readings
-    are stamped on the host's clock.
+    are stamped on the host's clock. `own_process` runs an emulated camera in a process of
+    its own (`EmulatorProcess`), so that rendering its scene does not take the tracker's
+    core; by default it does when it runs in real time (where the host must keep up), and
+    not when it is not (no clock to keep up with, and no process to start). Close the
+    result with `Opened.close()`.
     """
     if spec.kind == "capture":
         assert spec.arg is not None
@@ -160,13 +182,26 @@ def open_source(
         return Opened(camera)
     source = scene_source(spec.arg, seed)
     registers = source.settings.registers if isinstance(source, SceneSource) else None
-    emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
+    if own_process is None:
+        own_process = realtime and os.name == "posix"
+    emulator: EmulatedDevice
+    if own_process:
+        emulator = EmulatorProcess(
+            scene_recipe(spec.arg, seed), source=source, realtime=realtime, registers=registers
+        )
+    else:
+        emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
     backend = EmulatedBackend([emulator])
     clock_ns = time.time_ns
     if virtual_host_clock and not realtime:
         clock_ns = lambda: FAST_HOST_EPOCH_NS + emulator.now_us() * 1000  # noqa: E731
-    camera = Camera.open(
-        backend=backend, amplitude_threshold=amplitude_threshold, reconnect=reconnect,
-        on_event=on_event, clock_ns=clock_ns,
-    )  # fmt: skip
+    try:
+        camera = Camera.open(
+            backend=backend, amplitude_threshold=amplitude_threshold, reconnect=reconnect,
+            on_event=on_event, clock_ns=clock_ns,
+        )  # fmt: skip
+    except BaseException:
+        if isinstance(emulator, EmulatorProcess):
+            emulator.close()
+        raise
     return Opened(camera, emulator, scene_metadata(source), backend)
