@@ -48,7 +48,7 @@ def test_the_graph_sees_the_imports_that_are_allowed(graph):
         ("tofcut.sim", "tofcut.driver"),
         ("tofcut.tools.commands", "tofcut.tools.pipeline"),
         ("tofcut.tools.bench", "tofcut.tools.pipeline"),
-        ("tofcut.tracker.paper", "tofcut.tracker.kernels"),
+        ("tofcut.tracker.paper", "tofcut.tracker.components_kernels"),
         ("tofcut.tools.commands.live", "tofcut.tools.commands.tracking"),
     ]:
         assert graph.chain_exists(importer=importer, imported=imported, as_packages=True)

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels
+from tofcut.tracker import background_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
 
 B = npt.NDArray[np.bool_]
@@ -259,7 +259,7 @@ class BackgroundModel:
         loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
         if not loud.any():
             return nearer, self.sigma
-        median = kernels.median3_at(nearer, loud)
+        median = stats_kernels.median3_at(nearer, loud)
         return (
             np.where(loud, median, nearer),
             np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
@@ -275,7 +275,7 @@ class BackgroundModel:
         p = self.params
         usable = free & frame.valid
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
-        kernels.follow_scene(
+        background_kernels.follow_scene(
             self.range, self.sigma, self.known, self._farther, self._farther_min,
             self._unknown_seen, self._unknown_reads, frame.range, frame.valid, usable,
             near_any(frame.xyz, due, occupied, reach),
@@ -367,7 +367,7 @@ def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: Backg
     nearness (over the `usable` pixels in it, at least half of them) is `REGION_SIGMAS` times
     that mean's own noise and half the lowest object's height (`min_height_sigmas`). A low
     object in loud noise, none of whose pixels stands out alone, is found this way."""
-    out: B = kernels.standing_regions(
+    out: B = background_kernels.standing_regions(
         model, sigma, usable, seen, REGION_SIDE, REGION_SIGMAS,
         REGION_HEIGHT_SHARE * params.min_height_sigmas, params.min_height_m,
     )  # fmt: skip

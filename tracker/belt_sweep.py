@@ -23,7 +23,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64
-from tofcut.tracker import kernels
+from tofcut.tracker import belt_sweep_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
 
 F32 = npt.NDArray[np.float32]
@@ -88,7 +88,7 @@ def median_heights(xyz: F64, ok: B, normal: F64, at: B | None = None) -> tuple[F
     pixel itself usable)."""
     with np.errstate(invalid="ignore"):
         h = np.where(ok, xyz @ normal, INVALID)
-    h = kernels.median3_at(h, np.ones(ok.shape, np.bool_) if at is None else at)
+    h = stats_kernels.median3_at(h, np.ones(ok.shape, np.bool_) if at is None else at)
     return h, ok & (h > INVALID / 2)
 
 
@@ -98,7 +98,7 @@ def swept_layers(
     """Score each layer (offsets n·p) over (samples, pixels) arrays of heights, usability,
     noise and on-plane band."""
     reach = np.maximum(np.float32(3.0) * sigma, np.float32(params.above_m))
-    swept, on, squares = kernels.sweep_scores(
+    swept, on, squares = belt_sweep_kernels.sweep_scores(
         heights, ok, reach, band, np.asarray(layers, np.float64), params.min_times
     )
     return [

@@ -1,5 +1,5 @@
 """The tracker's numpy reference: `ReferenceTracker` computes the cut and the pieces with the
-plain numpy code the compiled kernels (`tofcut.tracker.kernels`) replaced. Tests run both
+plain numpy code the compiled kernels (`tofcut.tracker.compiled`) replaced. Tests run both
 trackers over the same frames and require the same labels and tracks; it is not fast."""
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from tofcut.tracker.background import (
     on_belt_height,
     standing_regions,
 )
-from tofcut.tracker.kernels import NEIGHBOURS
+from tofcut.tracker.cut_kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker, _quietened

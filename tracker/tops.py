@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
-from tofcut.tracker import kernels
+from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
 
 B = npt.NDArray[np.bool_]
 I32 = npt.NDArray[np.int32]
@@ -50,8 +50,8 @@ def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     where = body & np.isfinite(xyz[..., 2])
     if not where.any():
         return where
-    steep, *ratios = kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
-    if any(r.size and kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
+    steep, *ratios = tops_kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    if any(r.size and stats_kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
         return None
     up: B = where & ~steep
     return up
@@ -65,11 +65,11 @@ def split_by_tops(
     those tops: each pixel to the nearest in the image (a side face to the top it rises to
     or falls from). Pieces with one top, or tops at one height (one object's top broken up
     by noise), are kept whole."""
-    tops = kernels.label_pieces(up & (pieces > 0))
+    tops = components_kernels.label_pieces(up & (pieces > 0))
     n = int(tops.max())
     if n < 2:
         return pieces
-    size, height, noise2, home = kernels.top_stats(
+    size, height, noise2, home = tops_kernels.top_stats(
         tops, n, pieces, xyz, noise, belt.origin, belt.normal
     )
     big = size >= min_pixels
@@ -99,7 +99,7 @@ def split_by_tops(
         relabel[own] = label + 1 + np.arange(own.size)
         label += own.size
         out[region] = relabel[tops[rows, cols][region]]
-    # number the pieces 1..m in order of first appearance, as `kernels.label_pieces` does
+    # number the pieces 1..m in order of first appearance, as `label_pieces` does
     _, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
     rank = np.empty(first.size, np.int64)
     rank[np.argsort(first)] = np.arange(first.size)

@@ -35,7 +35,17 @@ from scipy.optimize import linear_sum_assignment
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels, stats
+from tofcut.tracker import (
+    background_kernels,
+    compiled,
+    components_kernels,
+    cut_kernels,
+    distance_kernels,
+    measure_kernels,
+    pieces_kernels,
+    stats,
+    stats_kernels,
+)
 from tofcut.tracker.background import (
     MEDIAN_NOISE_SHARE,
     BackgroundModel,
@@ -289,12 +299,13 @@ class Tracker:
         self._joining: dict[tuple[int, int], int] = {}
         """Pairs of tracks seen as faces of one object, and for how many frames running."""
         self._sorted: dict[int, tuple[F64, F64, int]] = {}
-        """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
-        kernels.warm_up()
+        """Per track id: its cloud, arranged for `distance_kernels.track_distances`, and the
+        axis."""
+        compiled.warm_up()
         p = self.params
         self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         """Farthest a track's surface can be from a point it could still win, in its spread."""
-        self._most_ties = 2 * p.smoothness * float(kernels.FACTORS.sum())
+        self._most_ties = 2 * p.smoothness * float(cut_kernels.FACTORS.sum())
         """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     @property
@@ -473,7 +484,7 @@ class Tracker:
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
         nearer, sigma = bg.weighed_nearness(frame)
-        cost: F64 = kernels.background_cost(
+        cost: F64 = cut_kernels.background_cost(
             bg.range, sigma, bg.known, bg.range - nearer, frame.valid, p.deadband,
             p.background_cap, p.unknown_cost,
         )  # fmt: skip
@@ -500,16 +511,18 @@ class Tracker:
         # ties only where they can matter: where the pixel's own ties could free it, and
         # around invalid pixels (which a run of them may free)
         near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
-        exps = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
-        wt, total = kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
-        free, rows, cols, points, at, ceiling = kernels.free_pixels(
+        exps = cut_kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
+        wt, total = cut_kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
+        free, rows, cols, points, at, ceiling = cut_kernels.free_pixels(
             valid, u0, total, frame.xyz, noise, p.object_cost
         )
         if not rows.size:
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
         distance, floor = self._distances_from(self._tracks, points, at, ceiling)
-        cost = kernels.object_costs(distance, p.object_cost, p.beta, u0, total, rows, cols, free)
+        cost = cut_kernels.object_costs(
+            distance, p.object_cost, p.beta, u0, total, rows, cols, free
+        )
         if not free.any():
             return labels
         if not valid.all():
@@ -518,11 +531,11 @@ class Tracker:
             free |= ~valid & np.isin(runs, keep[keep > 0])
         # invalid pixels have no data cost either way; where a track's surface was not
         # measured, `least` holds its cost from the shape alone
-        index, *nodes, unary, least, ties = kernels.cut_nodes(
+        index, *nodes, unary, least, ties = cut_kernels.cut_nodes(
             free, rows, cols, u0, total, cost, floor
         )
         where = (nodes[0], nodes[1])  # the nodes' pixels
-        kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
+        cut_kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
 
         def measure(tracks: I64, nodes: I64) -> None:
             # A node never takes a label that costs more than its ties above every label
@@ -550,10 +563,10 @@ class Tracker:
                         p.object_cost
                         + p.beta * self._distances_from(one, frame.xyz[v, u], noise[v, u])[0][0]
                     )
-                    unary[label, at] = kernels.add_fixed_ties_at(value, index, wt, v, u)
+                    unary[label, at] = cut_kernels.add_fixed_ties_at(value, index, wt, v, u)
                     least[label - 1, at] = np.nan
 
-        ei, ej, ew = kernels.free_edges(index, wt, where[0], where[1])
+        ei, ej, ew = cut_kernels.free_edges(index, wt, where[0], where[1])
         chosen = _solve_by_parts(unary, ei, ej, ew, ties, measure)
         ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
         labels[where] = ids[chosen]
@@ -579,7 +592,7 @@ class Tracker:
             ceiling = np.full(len(points), np.inf)
         clouds, starts, axes = self._surfaces(tracks)
         spread = np.maximum(p.surface_sigma_m, SQRT2 * noise)
-        out: tuple[F64, F64] = kernels.track_distances(
+        out: tuple[F64, F64] = distance_kernels.track_distances(
             points, ceiling + CEILING_MARGIN,
             np.array([t.filter.position for t in tracks]).reshape(-1, 3),
             np.linalg.inv(np.array([t.shape for t in tracks]).reshape(-1, 3, 3)),
@@ -589,15 +602,17 @@ class Tracker:
         return out
 
     def _surfaces(self, tracks: list[_Live]) -> tuple[F64, I64, I64]:
-        """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
-        one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
+        """The tracks' surfaces as `distance_kernels.track_distances` takes them: all the clouds in
+        one array, each arranged by `distance_kernels.sort_surfaces`, where each starts, and the
         axis each is sorted along (kept per track while its cloud stays the same)."""
         stale = [
             t for t in tracks if (kept := self._sorted.get(t.id)) is None or kept[0] is not t.cloud
         ]
         if stale:  # sorted all in one call
             bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
-            cloud, axis = kernels.sort_surfaces(np.concatenate([t.cloud for t in stale]), bounds)
+            cloud, axis = distance_kernels.sort_surfaces(
+                np.concatenate([t.cloud for t in stale]), bounds
+            )
             for k, t in enumerate(stale):
                 self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
             if len(stale) == len(tracks):  # all of them, in order
@@ -619,7 +634,7 @@ class Tracker:
         bg = self.background
         assert bg is not None
         q = bg.params
-        body = kernels.standing_out(
+        body = background_kernels.standing_out(
             bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
             q.min_height_m,
         )  # fmt: skip
@@ -642,8 +657,8 @@ class Tracker:
         side of such a step is left out."""
         xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
         spread2 = 9.0 * noise**2 if step_noise else _no_spread(frame.shape)
-        body = kernels.cut_at_steps(body, xyz, rng, self.params.connect_m**2, spread2)
-        pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
+        body = pieces_kernels.cut_at_steps(body, xyz, rng, self.params.connect_m**2, spread2)
+        pieces: npt.NDArray[np.int32] = components_kernels.label_pieces(body)
         return self._by_tops(xyz, body, pieces, noise)
 
     def _by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64) -> I32:
@@ -671,7 +686,7 @@ class Tracker:
         seam = 1 if p.rigid else 2
         touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
         # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
-        corners, starts, held = kernels.label_points(
+        corners, starts, held = measure_kernels.label_points(
             labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
         )
         piece_boxes: list[tuple[slice, slice] | None] | None = None
@@ -714,7 +729,7 @@ class Tracker:
                 # a target that bends (a person) shows all of itself in every view
                 t.measured = usual == 0 or whole or not p.rigid
                 if t.measured:
-                    t.filter.correct(kernels.point_stats(pts)[0])  # pts.mean(axis=0)
+                    t.filter.correct(measure_kernels.point_stats(pts)[0])  # pts.mean(axis=0)
                     t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
                     t.cloud = _subsample(pts, p.cloud_points)
                     t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
@@ -783,7 +798,7 @@ class Tracker:
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
         for k, t in enumerate(self._tracks):
             row[t.id] = k + 1
-        held = kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
+        held = measure_kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
         held[:, 0] = 0
         size = held.sum(axis=1)
         big = (held >= p.min_pixels) & (
@@ -937,7 +952,7 @@ def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F
     loud = body & (noise * 3.0 >= step_m)
     if not loud.any():
         return frame.xyz, frame.range, noise
-    rng = kernels.median3_within(frame.range, body, loud)
+    rng = stats_kernels.median3_within(frame.range, body, loud)
     moved = loud & (frame.range != 0)
     xyz = frame.xyz.copy()
     xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
@@ -998,7 +1013,7 @@ def _box_of(mask: B) -> tuple[slice, slice]:
 def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
     """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
     bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
-    centroid, lo, hi = kernels.point_stats(pts)
+    centroid, lo, hi = measure_kernels.point_stats(pts)
     return Track(
         t.id, centroid, t.filter.velocity, lo, hi, bbox, len(pts), pts.astype(np.float32),
     )  # fmt: skip
@@ -1030,7 +1045,7 @@ def _solve_by_parts(
     # chosen: each node's cheapest label, right for every node without edges
     # contenders: how many labels may win each part an edge joins (0 elsewhere)
     part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders = (
-        kernels.split_parts(unary, i, j, ties)
+        cut_kernels.split_parts(unary, i, j, ties)
     )
     local = np.empty(n, np.int64)
     multi = [
@@ -1052,7 +1067,7 @@ def _solve_by_parts(
     binary = contenders == 2
     if binary.any():
         # every part where one track meets the background: one exact cut for them all
-        nodes, track, pair, bi, bj, bw = kernels.binary_parts(
+        nodes, track, pair, bi, bj, bw = cut_kernels.binary_parts(
             unary, i, j, w, part_of, order, edge_order, binary, can_win
         )
         chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)

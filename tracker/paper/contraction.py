@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64
-from tofcut.tracker.kernels import number_sets, root
+from tofcut.tracker.components_kernels import number_sets, root
 from tofcut.tracker.paper.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
 
 BOOL = npt.NDArray[np.bool_]
