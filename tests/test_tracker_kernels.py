@@ -3,6 +3,10 @@ the same labels and tracks, frame by frame, on emulated scenes."""
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+
+import numba
 import numpy as np
 import pytest
 
@@ -10,18 +14,15 @@ from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tracker import (
-    background_kernels,
-    belt_sweep_kernels,
+    compiled,
     components_kernels,
     cut_kernels,
     distance_kernels,
     measure_kernels,
     multicut,
     multicut_kernels,
-    noise_kernels,
     pieces_kernels,
     stats_kernels,
-    tops_kernels,
 )
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
@@ -29,19 +30,10 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
 
-KERNEL_MODULES = (
-    background_kernels, belt_sweep_kernels, components_kernels, cut_kernels, distance_kernels,
-    measure_kernels, multicut_kernels, noise_kernels, pieces_kernels, stats_kernels, tops_kernels,
-)  # fmt: skip
-
 
 def _kernels():
-    return {
-        f"{module.__name__}.{name}": f
-        for module in KERNEL_MODULES
-        for name, f in vars(module).items()
-        if getattr(f, "signatures", None)
-    }
+    every = {name: f for name, (f, _) in compiled.KERNELS.items()} | compiled.HELPERS
+    return {name: f for name, f in every.items() if f.signatures}
 
 
 def _same_run(source, frames):
@@ -315,3 +307,51 @@ def test_every_step_the_reference_replaces_is_still_a_step_of_the_tracker():
         assert replaced, ref
         missing = [name for name in replaced if not callable(getattr(base, name, None))]
         assert not missing, f"{ref.__name__} replaces {missing}, which {base.__name__} lacks"
+
+
+def _compiled_in(module_name):
+    """The numba functions a module defines (not those it imports), by module and name."""
+    module = importlib.import_module(module_name)
+    return {
+        f"{module_name}.{name}": f
+        for name, f in vars(module).items()
+        if isinstance(f, numba.core.dispatcher.Dispatcher) and f.py_func.__module__ == module_name
+    }
+
+
+def test_every_compiled_kernel_is_registered_for_the_warm_up():
+    import tofcut.tracker
+
+    # every compiled function of the multi-object tracker (the paper's segmentation, in its
+    # own package, is not the tracker's) lives in a kernel module...
+    modules = [f"tofcut.tracker.{m.name}" for m in pkgutil.iter_modules(tofcut.tracker.__path__)]
+    assert set(compiled.kernel_modules()) < set(modules)
+    stray = [
+        name for module in modules if module not in compiled.kernel_modules()
+        for name in _compiled_in(module)
+    ]  # fmt: skip
+    assert not stray, f"compiled outside a *_kernels module: {stray}"
+    found = {}
+    for module in compiled.kernel_modules():
+        found |= _compiled_in(module)
+    assert len(found) >= 40
+    # ...registered as a kernel, with the argument types it is called with, or as a helper
+    registered = {name: f for name, (f, _) in compiled.KERNELS.items()} | compiled.HELPERS
+    unregistered = sorted(name for name, f in found.items() if registered.get(name) is not f)
+    assert not unregistered, f"compiled, but registered for the warm-up neither way: {unregistered}"
+    # a helper is warmed up inside the kernels that call it: some kernel reaches it
+    helpers = {id(f): f for f in compiled.HELPERS.values()}
+    reached, todo = set(), [f for f, _ in compiled.KERNELS.values()]
+    while todo:
+        f = todo.pop()
+        for name in f.py_func.__code__.co_names:
+            callee = id(f.py_func.__globals__.get(name))
+            if callee in helpers and callee not in reached:
+                reached.add(callee)
+                todo.append(helpers[callee])
+    idle = sorted(name for name, f in compiled.HELPERS.items() if id(f) not in reached)
+    assert not idle, f"helpers no kernel calls, so never warmed up: {idle}"
+    # and the warm-up loads each kernel for each of its examples
+    compiled.warm_up()
+    for name, (f, examples) in compiled.KERNELS.items():
+        assert len(f.signatures) >= len(examples), name

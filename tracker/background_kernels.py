@@ -7,14 +7,19 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, U16_2D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel(
+    (
+        F64_2D, F64_2D, B_2D, I32_2D, F64_2D, I32_2D, F64_3D, F64_2D, B_2D, B_2D, B_2D, F64_2D,
+        1.0, 1.0, 1.0, 1, 1.0, 1.0,
+    )
+)  # fmt: skip
 def follow_scene(
     model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
     unknown_seen: npt.NDArray[np.int32], unknown_reads: F64, seen: F64, valid: B, usable: B,
@@ -74,7 +79,7 @@ def follow_scene(
                 known[v, u] = True
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, U16_2D, 1.0, 1.0))
 def standing_out(
     model: F64, sigma: F64, known: B, seen: F64, valid: B, labels: npt.NDArray[np.uint16],
     noise_factor: float, min_height: float,
@@ -90,7 +95,7 @@ def standing_out(
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, 1, 1.0, 1.0, 1.0))
 def standing_regions(
     model: F64, sigma: F64, usable: B, seen: F64, side: int, sigmas: float, low_share: float,
     min_height: float,

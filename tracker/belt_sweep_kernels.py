@@ -4,13 +4,13 @@ pixels each layer saw swept (`tofcut.tracker.belt_sweep`).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from tofcut._types import F32, F64, I64, B
+from tofcut.tracker.compiled import B_2D, F32_2D, F64_1D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F32_2D, B_2D, F32_2D, F32_2D, F64_1D, 1))
 def sweep_scores(
     heights: F32, ok: B, reach: F32, band: F32, offsets: F64, min_times: int
 ) -> tuple[I64, I64, F64]:  # fmt: skip

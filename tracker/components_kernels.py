@@ -6,14 +6,14 @@ union-find (`tofcut.tracker.paper.contraction`).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import I64, B
+from tofcut.tracker.compiled import B_2D, helper, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def root(parent: npt.NDArray[np.int32] | I64, a: int) -> int:
     """The root of `a` in a union-find forest, halving the path on the way."""
     while parent[a] != a:
@@ -22,7 +22,7 @@ def root(parent: npt.NDArray[np.int32] | I64, a: int) -> int:
     return a
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def number_sets(parent: npt.NDArray[np.int32] | I64, first: int, base: int) -> I64:
     """Each element from `first` on numbered by its set, from `base` up in the order of each
     set's first element (every set's root is its smallest element)."""
@@ -38,7 +38,7 @@ def number_sets(parent: npt.NDArray[np.int32] | I64, first: int, base: int) -> I
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_2D,))
 def label_pieces(body: B) -> npt.NDArray[np.int32]:
     """`scipy.ndimage.label(body)[0]`: the 4-connected pieces of `body`, numbered from 1 in
     the order of each one's first pixel in row-major order (0 elsewhere)."""
@@ -69,7 +69,7 @@ def label_pieces(body: B) -> npt.NDArray[np.int32]:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def parts(n: int, i: I64, j: I64) -> tuple[int, I64]:
     """Connected parts of n nodes joined by edges (i, j): how many, and each node's part,
     numbered in the order of each part's first node (as scipy's connected_components)."""

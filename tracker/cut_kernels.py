@@ -10,10 +10,20 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from tofcut._types import F64, I64, B
+from tofcut.tracker.compiled import (
+    B_1D,
+    B_2D,
+    F64_1D,
+    F64_2D,
+    F64_3D,
+    I64_1D,
+    I64_2D,
+    helper,
+    kernel,
+)
 from tofcut.tracker.components_kernels import parts
 
 NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
@@ -23,7 +33,7 @@ _DU = np.array([d[1] for d in NEIGHBOURS], np.int64)
 FACTORS = np.array([d[2] for d in NEIGHBOURS])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_3D, B_2D, B_2D, 1.0))
 def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
     """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
     NEIGHBOURS from p) with p or q in `near`, in the order `tie_weights` takes them."""
@@ -52,7 +62,7 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
     return out[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_1D, B_2D, B_2D, 1.0))
 def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F64]:
     """Eq. (7)'s Potts weight of every neighbour pair with an end in `near`, (4, H, W) by
     the first pixel and direction (λ·factor·exp of the pair's exponent where both pixels
@@ -97,7 +107,7 @@ def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F
     return wt, total
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_2D, F64_2D, F64_2D, F64_3D, F64_2D, 1.0))
 def free_pixels(
     valid: B, u0: F64, total: F64, xyz: F64, noise: F64, object_cost: float
 ) -> tuple[B, I64, I64, F64, F64, F64]:
@@ -129,7 +139,7 @@ def free_pixels(
     return free, rows, cols, points, at, ceiling
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, 1.0, 1.0, F64_2D, F64_2D, I64_1D, I64_1D, B_2D))
 def object_costs(
     distance: F64, object_cost: float, beta: float, u0: F64, total: F64, rows: I64,
     cols: I64, free: B,
@@ -150,7 +160,7 @@ def object_costs(
     return cost
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_2D, I64_1D, I64_1D, F64_2D, F64_2D, F64_2D, F64_2D))
 def cut_nodes(
     free: B, rows: I64, cols: I64, u0: F64, total: F64, cost: F64, floor: F64
 ) -> tuple[I64, I64, I64, F64, F64, F64]:
@@ -191,7 +201,7 @@ def cut_nodes(
     return index, where_v, where_u, unary, least, ties
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((I64_2D, F64_3D, I64_1D, I64_1D))
 def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64]:
     """Edges (i, j, weight) between neighbouring free pixels (`index` ≥ 0: their node
     number; node n at (rows[n], cols[n]), in row-major order), direction by direction."""
@@ -212,7 +222,7 @@ def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64
     return ei[:n], ej[:n], ew[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float:
     """`value` plus the tie of pixel (v, u) to each fixed neighbour, added one by one in the
     order of `tie_weights`' sums."""
@@ -226,7 +236,7 @@ def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float
     return value
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, I64_2D, F64_3D, I64_1D, I64_1D))
 def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> None:
     """A free pixel (`index` ≥ 0: its node; node n at (rows[n], cols[n])) beside a fixed
     one pays the tie for any object label: add each such tie to rows 1.. of `unary`, in the
@@ -251,7 +261,7 @@ def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> Non
             unary[label, node] = value
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_1D, I64_2D, F64_3D, I64_1D, I64_1D))
 def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64:
     """`add_fixed_ties` for one label's costs `values` at the pixels (vs, us)."""
     out = np.empty_like(values)
@@ -260,7 +270,7 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, 1.0))
 def background_cost(
     model: F64, sigma: F64, known: B, seen: F64, valid: B, deadband: float, cap: float,
     unknown: float,
@@ -281,7 +291,7 @@ def background_cost(
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
     """`np.argsort(keys, kind="stable")` of keys in [0, count), and where each key's run
     starts in it (`np.searchsorted(sorted keys, np.arange(count + 1))`): a counting sort,
@@ -312,7 +322,7 @@ def _grouped(keys: I64, count: int) -> tuple[I64, I64]:
     return order, bounds
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, I64_1D, I64_1D, F64_1D))
 def split_parts(
     unary: F64, i: I64, j: I64, ties: F64
 ) -> tuple[I64, I64, I64, I64, I64, I64, B, I64]:
@@ -353,7 +363,7 @@ def split_parts(
     return part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, I64_1D, I64_1D, F64_1D, I64_1D, I64_1D, I64_1D, B_1D, B_2D))
 def binary_parts(
     unary: F64, i: I64, j: I64, w: F64, part_of: I64, order: I64, edge_order: I64,
     binary: B, can_win: B,

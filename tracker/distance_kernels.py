@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from tofcut._types import F64, I64
+from tofcut.tracker.compiled import F64_1D, F64_2D, F64_3D, I64_1D, helper, kernel
 
 BUCKET = 8
 """Points of a surface cloud boxed together for `_nearest` to pass over at once."""
@@ -18,7 +18,7 @@ SLAB = 32
 """Points in a slab: a run of the cloud sorted along its widest axis (see `sort_surfaces`)."""
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _boxes(cloud: F64) -> F64:
     """(buckets, 2, 3) the low and high corner of each run of BUCKET points of `cloud`."""
     m = cloud.shape[0]
@@ -34,7 +34,7 @@ def _boxes(cloud: F64) -> F64:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _slabs(boxes: F64, axis: int) -> F64:
     """(slabs, 2) the low and high end along `axis` of each slab's boxes."""
     per = SLAB // BUCKET
@@ -45,7 +45,7 @@ def _slabs(boxes: F64, axis: int) -> F64:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _nearest(
     cloud: F64, boxes: F64, slabs: F64, axis: int, q: F64, bound2: float, hint: int
 ) -> tuple[float, int]:
@@ -94,7 +94,7 @@ def _nearest(
     return (math.sqrt(best) if best < bound2 else np.inf), found
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, F64_1D, F64_2D, F64_3D, F64_2D, I64_1D, I64_1D, 1.0, 1.0, 1.0, F64_1D, 1.0))
 def track_distances(
     points: F64,
     ceiling: F64,
@@ -164,7 +164,7 @@ def track_distances(
     return out, rough
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _ascending(keys: F64, lo: float, hi: float) -> I64:
     """An order that sorts `keys` (within [lo, hi], no nan), ties in any order: a counting
     sort into as many buckets as keys, then an insertion sort for the few it leaves out
@@ -194,7 +194,7 @@ def _ascending(keys: F64, lo: float, hi: float) -> I64:
     return order
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, I64_1D))
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
     slab of SLAB points along the widest of the other two (as `track_distances` takes

@@ -4,14 +4,14 @@ box and points, their mean and extent, and how many pixels of each piece each tr
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64, I64
+from tofcut.tracker.compiled import F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((U16_2D, F64_3D, I64_1D))
 def label_points(
     labels: npt.NDArray[np.uint16], xyz: F64, ids: I64
 ) -> tuple[I64, I64, F64]:  # fmt: skip
@@ -57,7 +57,7 @@ def label_points(
     return boxes, starts, points
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D,))
 def point_stats(points: F64) -> tuple[F64, F64, F64]:
     """`points.mean(axis=0)`, `.min(axis=0)` and `.max(axis=0)` of (N, 3) C-ordered points,
     N ≥ 1, in one pass: numpy sums such an array's rows in order, then divides by N, and a
@@ -74,7 +74,7 @@ def point_stats(points: F64) -> tuple[F64, F64, F64]:
     return total / points.shape[0], lo, hi
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((U16_2D, I32_2D, I64_1D, 1, 1))
 def held_pieces(
     labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], row: I64, rows: int,
     n_pieces: int,

@@ -5,13 +5,13 @@ capacities (`tofcut.tracker.multicut`).
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from tofcut._types import F64, I64, B
+from tofcut.tracker.compiled import B_1D, F64_1D, F64_2D, F64_2D_F, I64_1D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, I64_1D, I64_1D, F64_1D), (F64_2D_F, I64_1D, I64_1D, F64_1D))
 def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
     """Nodes whose cheapest label is cheaper than any other by more than all their edges
     weigh: from there no labelling of their neighbours makes another label pay, so no
@@ -35,7 +35,7 @@ def settled(unary: F64, i: I64, j: I64, w: F64) -> B:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_1D, I64_1D, I64_1D, F64_1D))
 def moving_graph(move: B, i: I64, j: I64, w: F64) -> tuple[I64, I64, I64, I64, F64]:
     """The nodes that `move` (in order), each node's number among them (−1 for the others)
     and the edges (i, j, w) with an end among them, in order."""
@@ -60,7 +60,7 @@ def moving_graph(move: B, i: I64, j: I64, w: F64) -> tuple[I64, I64, I64, I64, F
     return nodes, local, ri[:k], rj[:k], rw[:k]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, B_1D), (F64_2D_F, B_1D))
 def cheapest_where(unary: F64, where: B) -> I64:
     """`np.argmin(unary[:, where], axis=0)` (the first nan, if any) at the nodes `where`,
     0 elsewhere."""
@@ -81,7 +81,10 @@ def cheapest_where(unary: F64, where: B) -> I64:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel(
+    (F64_2D, I64_1D, 1, I64_1D, I64_1D, F64_1D, I64_1D, I64_1D),
+    (F64_2D_F, I64_1D, 1, I64_1D, I64_1D, F64_1D, I64_1D, I64_1D),
+)
 def expansion_terms(
     unary: F64, labels: I64, alpha: int, i: I64, j: I64, w: F64, local: I64, nodes: I64
 ) -> tuple[F64, F64, I64, I64, F64]:

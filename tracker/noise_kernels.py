@@ -7,13 +7,13 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_2D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, 1))
 def noise_fit(intensity: F64, amplitude: F64, valid: B, rng: F64, stride: int) -> tuple[F64, F64]:
     """`tofcut.tracker.noise.range_noise`'s per-pixel shape of the noise, √max(B, 0) / A
     (inf where invalid or not finite), and its fit's ratios: along every stride-th row,
@@ -40,7 +40,7 @@ def noise_fit(intensity: F64, amplitude: F64, valid: B, rng: F64, stride: int) -
     return shape, ratios[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, 1.0, 1.0))
 def noise_scaled(shape: F64, scale: float, floor: float) -> F64:
     """`np.maximum(scale * shape, floor)`."""
     h, w = shape.shape

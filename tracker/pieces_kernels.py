@@ -4,12 +4,11 @@
 
 from __future__ import annotations
 
-import numba
-
 from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D))
 def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
     """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
     of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a

@@ -4,13 +4,13 @@ and 3×3 medians over an image.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, helper, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@helper
 def _select(a: F64, lo: int, hi: int, k: int) -> float:
     """The k-th smallest of a[lo:hi + 1] (no nan), partly reordering it (quickselect)."""
     while lo < hi:
@@ -34,7 +34,7 @@ def _select(a: F64, lo: int, hi: int, k: int) -> float:
     return float(a[k])
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_1D,))
 def median(values: F64) -> float:
     """`np.median(values)` of a 1-D array (at least one value): the middle value, or the
     mean of the middle two, (a + b) / 2; nan if any is."""
@@ -52,7 +52,7 @@ def median(values: F64) -> float:
     return (lower + upper) / 2.0
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, B_2D))
 def median3_at(values: F64, where: B) -> F64:
     """`values` with each pixel in `where` replaced by the median of its 3×3 neighbourhood
     (`scipy.ndimage.median_filter(values, 3, mode="nearest")` there)."""
@@ -77,7 +77,7 @@ def median3_at(values: F64, where: B) -> F64:
     return out
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((F64_2D, B_2D, B_2D))
 def median3_within(values: F64, where: B, loud: B) -> F64:
     """`values` with each pixel of `where` that is `loud` replaced by the median of its 3×3
     neighbours in `where` (itself included): one surface's noise quietened without taking

@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64, I64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((B_2D, F64_3D, F64_2D, F64_1D, 1, 1.0))
 def steep_pixels(
     where: B, xyz: F64, noise: F64, normal: F64, baseline: int, max_slope: float
 ) -> tuple[B, F64, F64]:
@@ -61,7 +61,7 @@ def steep_pixels(
     return steep, ratios[0, : counts[0]].copy(), ratios[1, : counts[1]].copy()
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@kernel((I32_2D, 1, I32_2D, F64_3D, F64_2D, F64_1D, F64_1D))
 def top_stats(
     tops: npt.NDArray[np.int32], n: int, pieces: npt.NDArray[np.int32], xyz: F64,
     noise: F64, origin: F64, normal: F64,
