@@ -23,6 +23,7 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.neighbours import EIGHT
 
 B = npt.NDArray[np.bool_]
 
@@ -327,8 +328,8 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
     the image but not its band: they cover their own stretch of the bands beside it, not the
     rail's whole length; a row of boxes as long as the rail is wider than one."""
     # a rail's pixels are broken up by noise: bridged
-    near = ndimage.binary_dilation(above, np.ones((3, 3), bool))
-    parts, _ = ndimage.label(near, np.ones((3, 3), bool))
+    near = ndimage.binary_dilation(above, EIGHT)
+    parts, _ = ndimage.label(near, EIGHT)
     parts = np.where(above, parts, 0)
     rails = np.zeros(above.shape, bool)
     for k, box in enumerate(ndimage.find_objects(parts), start=1):

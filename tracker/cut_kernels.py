@@ -8,8 +8,6 @@ vectorised one), is left to numpy: `tie_exponents` and `tie_weights` go either s
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from tofcut._types import F64, I64, B
@@ -25,18 +23,14 @@ from tofcut.tracker.compiled import (
     kernel,
 )
 from tofcut.tracker.components_kernels import parts
-
-NEIGHBOURS = ((0, 1, 1.0), (1, 0, 1.0), (1, 1, 1 / math.sqrt(2)), (1, -1, 1 / math.sqrt(2)))
-"""Half of the 8-neighbourhood as (dv, du, weight factor); diagonals count 1/√2."""
-_DV = np.array([d[0] for d in NEIGHBOURS], np.int64)
-_DU = np.array([d[1] for d in NEIGHBOURS], np.int64)
-FACTORS = np.array([d[2] for d in NEIGHBOURS])
+from tofcut.tracker.neighbours import DU, DV, FACTORS
 
 
 @kernel((F64_3D, B_2D, B_2D, 1.0))
 def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
-    """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q in a direction of
-    NEIGHBOURS from p) with p or q in `near`, in the order `tie_weights` takes them."""
+    """−|D_p − D_q|² / 2σ² of each pair of valid neighbours p, q (q along one of the
+    neighbours' OFFSETS from p) with p or q in `near`, in the order `tie_weights` takes
+    them."""
     h, w = valid.shape
     out = np.empty(4 * h * w)
     n = 0
@@ -45,7 +39,7 @@ def tie_exponents(xyz: F64, valid: B, near: B, two_sigma2: float) -> F64:
             if not near[v0, u0]:
                 continue
             for k in range(4):
-                dv, du = _DV[k], _DU[k]
+                dv, du = DV[k], DU[k]
                 for side in range(2):  # the pair where (v0, u0) is first, then second
                     v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
                     v2, u2 = v + dv, u + du
@@ -73,13 +67,15 @@ def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F
     wt = np.empty((4, h, w))
     total = np.zeros((h, w))
     n = 0
+    # the pairs walked as `tie_exponents` walks them, on purpose: numpy's exp goes between
+    # the two (see the module's docstring), and `exps` is read in that order
     for v0 in range(h):
         for u0 in range(w):
             if not near[v0, u0]:
                 continue
             for k in range(4):
                 sf = smoothness * FACTORS[k]
-                dv, du = _DV[k], _DU[k]
+                dv, du = DV[k], DU[k]
                 for side in range(2):
                     v, u = (v0, u0) if side == 0 else (v0 - dv, u0 - du)
                     v2, u2 = v + dv, u + du
@@ -98,7 +94,7 @@ def tie_weights(exps: F64, valid: B, near: B, smoothness: float) -> tuple[F64, F
                 continue
             acc = 0.0
             for k in range(4):
-                dv, du = _DV[k], _DU[k]
+                dv, du = DV[k], DU[k]
                 if v + dv < h and 0 <= u + du < w:
                     acc += wt[k, v, u]
                 if v - dv >= 0 and 0 <= u - du < w:
@@ -211,7 +207,7 @@ def free_edges(index: I64, wt: F64, rows: I64, cols: I64) -> tuple[I64, I64, F64
     ew = np.empty(4 * rows.size)
     n = 0
     for k in range(4):
-        dv, du = _DV[k], _DU[k]
+        dv, du = DV[k], DU[k]
         for a in range(rows.size):
             v2, u2 = rows[a] + dv, cols[a] + du
             if v2 < h and 0 <= u2 < w and index[v2, u2] >= 0:
@@ -228,7 +224,7 @@ def _with_fixed_ties(value: float, index: I64, wt: F64, v: int, u: int) -> float
     order of `tie_weights`' sums."""
     h, w = index.shape
     for k in range(4):
-        dv, du = _DV[k], _DU[k]
+        dv, du = DV[k], DU[k]
         if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
             value += wt[k, v, u]
         if v - dv >= 0 and 0 <= u - du < w and index[v - dv, u - du] < 0:
@@ -247,7 +243,7 @@ def add_fixed_ties(unary: F64, index: I64, wt: F64, rows: I64, cols: I64) -> Non
         v, u = rows[node], cols[node]
         count = 0
         for k in range(4):
-            dv, du = _DV[k], _DU[k]
+            dv, du = DV[k], DU[k]
             if v + dv < h and 0 <= u + du < w and index[v + dv, u + du] < 0:
                 ties[count] = wt[k, v, u]
                 count += 1

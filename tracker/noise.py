@@ -15,9 +15,8 @@ import numpy as np
 from tofcut._types import F64
 from tofcut.driver.frames import Frame
 from tofcut.tracker import noise_kernels, stats_kernels
+from tofcut.tracker.stats import MAD_TO_SIGMA
 
-MAD_TO_SIGMA = 1.4826
-"""A normal variable's σ over its median absolute value."""
 FIT_STRIDE = 4
 
 

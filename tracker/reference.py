@@ -21,14 +21,14 @@ from tofcut.tracker.background import (
     on_belt_height,
     standing_regions,
 )
-from tofcut.tracker.cut_kernels import NEIGHBOURS
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
-from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
+from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
+from tofcut.tracker.noise import FIT_STRIDE
+from tofcut.tracker.stats import MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker, _quietened
 
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
-_Index = tuple[slice, slice]
 
 
 def range_noise(frame: Frame, floor_m: float) -> F64:
@@ -85,7 +85,7 @@ class ReferenceTracker(Tracker):
 
     background_model = ReferenceBackground
 
-    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
+    def _ties(self, frame: Frame) -> tuple[list[tuple[Region, Region, F64]], F64]:
         """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
         sum of the weights at each pixel."""
         p = self.params
@@ -94,8 +94,8 @@ class ReferenceTracker(Tracker):
         xyz = frame.xyz
         ties = []
         total = np.zeros((h, w))
-        for dv, du, factor in NEIGHBOURS:
-            a, b = _shifted(h, w, dv, du)
+        for k, factor in enumerate(FACTORS):
+            a, b = pair_slices((h, w), k)
             d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
             wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
             wt[~(valid[a] & valid[b])] = p.smoothness * factor
@@ -125,7 +125,7 @@ class ReferenceTracker(Tracker):
             return labels
         column = np.full((h, w), -1, np.int64)
         column[first] = np.arange(first[0].size)
-        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
+        runs, _ = ndimage.label(free | ~valid, structure=EIGHT)
         keep = np.unique(runs[free])
         free |= ~valid & np.isin(runs, keep[keep > 0])
         n = int(free.sum())
@@ -199,8 +199,8 @@ class ReferenceTracker(Tracker):
         body = body.copy()
         xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
         spread2 = 9.0 * noise**2 if step_noise else np.zeros(frame.shape)
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = _shifted(h, w, dv, du)
+        for k in (0, 1):  # right, down
+            a, b = pair_slices((h, w), k)
             allowed = np.maximum(self.params.connect_m**2, spread2[a] + spread2[b])
             jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
             far_a = jump & (rng[a] > rng[b])
@@ -247,14 +247,3 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
-
-
-def _shifted(h: int, w: int, dv: int, du: int) -> tuple[_Index, _Index]:
-    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
-    rows_a = slice(0, h - dv)
-    rows_b = slice(dv, h)
-    if du >= 0:
-        cols_a, cols_b = slice(0, w - du), slice(du, w)
-    else:
-        cols_a, cols_b = slice(-du, w), slice(0, w + du)
-    return (rows_a, cols_a), (rows_b, cols_b)

@@ -52,6 +52,16 @@ def median(values: F64) -> float:
     return (lower + upper) / 2.0
 
 
+@helper
+def _insert(window: F64, k: int, x: float) -> None:
+    """Put `x` in order into `window`, whose first `k` values are in ascending order: one step
+    of an insertion sort, for a window's median as it fills."""
+    while k > 0 and window[k - 1] > x:
+        window[k] = window[k - 1]
+        k -= 1
+    window[k] = x
+
+
 @kernel((F64_2D, B_2D))
 def median3_at(values: F64, where: B) -> F64:
     """`values` with each pixel in `where` replaced by the median of its 3×3 neighbourhood
@@ -67,11 +77,7 @@ def median3_at(values: F64, where: B) -> F64:
             for dv in (-1, 0, 1):
                 for du in (-1, 0, 1):
                     x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
-                    j = k  # insertion sort as it fills
-                    while j > 0 and window[j - 1] > x:
-                        window[j] = window[j - 1]
-                        j -= 1
-                    window[j] = x
+                    _insert(window, k, x)
                     k += 1
             out[v, u] = window[4]
     return out
@@ -95,12 +101,7 @@ def median3_within(values: F64, where: B, loud: B) -> F64:
                     y, x = v + dv, u + du
                     if not (0 <= y < h and 0 <= x < w and where[y, x]):
                         continue
-                    z = values[y, x]
-                    j = k  # insertion sort as it fills
-                    while j > 0 and window[j - 1] > z:
-                        window[j] = window[j - 1]
-                        j -= 1
-                    window[j] = z
+                    _insert(window, k, values[y, x])
                     k += 1
             out[v, u] = window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2])
     return out

@@ -18,6 +18,7 @@ from scipy import ndimage
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 
 B = npt.NDArray[np.bool_]
 I32 = npt.NDArray[np.int32]
@@ -118,8 +119,8 @@ def one_object(
     pairs: dict[tuple[int, int], list[int]] = {}
     seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
     h, w = labels.shape
-    for dv, du in ((0, 1), (1, 0)):
-        first, second = np.s_[: h - dv, : w - du], np.s_[dv:, du:]
+    for k in (0, 1):  # right, down
+        (dv, du), (first, second) = OFFSETS[k], pair_slices((h, w), k)
         a, b = labels[first], labels[second]
         meet = (a != b) & (a > 0) & (b > 0)
         if not meet.any():

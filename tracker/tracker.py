@@ -57,6 +57,7 @@ from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.neighbours import EIGHT, FACTORS, pair_slices
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 from tofcut.tracker.tracks import Track, TrackedFrame
@@ -206,7 +207,6 @@ class _Candidate:
     seen: int = 1
 
 
-_EIGHT = np.ones((3, 3), bool)
 _NONE = np.zeros((0, 0), bool)
 _NO_POINTS = np.zeros((0, 3))
 
@@ -223,7 +223,7 @@ def _touching_pieces(
     labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], reach: int
 ) -> dict[int, npt.NDArray[np.int32]]:
     """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
-    its mask: `pieces[binary_dilation(labels == id, _EIGHT, reach)]`, for all tracks at
+    its mask: `pieces[binary_dilation(labels == id, EIGHT, reach)]`, for all tracks at
     once."""
     h, w = labels.shape
     found = []
@@ -305,7 +305,7 @@ class Tracker:
         p = self.params
         self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
         """Farthest a track's surface can be from a point it could still win, in its spread."""
-        self._most_ties = 2 * p.smoothness * float(cut_kernels.FACTORS.sum())
+        self._most_ties = 2 * p.smoothness * float(FACTORS.sum())
         """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     @property
@@ -449,7 +449,7 @@ class Tracker:
             np.linalg.norm(frame.xyz - centre, axis=-1) < self.params.seed_radius_m
         )
         ball[v, u] = True
-        parts, _ = ndimage.label(ball, _EIGHT)
+        parts, _ = ndimage.label(ball, EIGHT)
         region: B = parts == parts[v, u]
         return region
 
@@ -526,7 +526,7 @@ class Tracker:
         if not free.any():
             return labels
         if not valid.all():
-            runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
+            runs, _ = ndimage.label(free | ~valid, structure=EIGHT)
             keep = np.unique(runs[free])
             free |= ~valid & np.isin(runs, keep[keep > 0])
         # invalid pixels have no data cost either way; where a track's surface was not
@@ -940,7 +940,7 @@ def _solid(piece: B, min_pixels: int) -> bool:
     box = _box_of(piece)
     if _on_border(box, piece.shape):
         return True  # coming into view: a sliver of it first
-    core = ndimage.binary_erosion(piece[box], _EIGHT)
+    core = ndimage.binary_erosion(piece[box], EIGHT)
     return int(np.count_nonzero(core)) * 2 >= min_pixels
 
 
@@ -996,7 +996,8 @@ def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float)
     cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
     pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
     meet = joined = 0
-    for one, other in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
+    for k in (0, 1):  # right, down
+        one, other = pair_slices(pa.shape, k)
         pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
         gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
         meet += gap.size
@@ -1026,7 +1027,7 @@ def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
     (which parts the mask)."""
     sizes = np.bincount(pieces.ravel())
     first = surfaces[np.argmax(sizes[surfaces])]
-    parts, _ = ndimage.label(mask, _EIGHT)
+    parts, _ = ndimage.label(mask, EIGHT)
     home = np.bincount(parts[pieces == first]).argmax()
     if home == 0:
         return False
