@@ -25,7 +25,7 @@ import dataclasses
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
@@ -43,162 +43,35 @@ from tofcut.tracker import (
     distance_kernels,
     measure_kernels,
     pieces_kernels,
-    stats,
     stats_kernels,
 )
 from tofcut.tracker.background import (
     MEDIAN_NOISE_SHARE,
     BackgroundModel,
-    BackgroundParams,
     on_belt_height,
     standing_regions,
 )
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.motion import ConstantVelocity, MotionParams
+from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, SortedSurface, shape_of
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS, pair_slices
 from tofcut.tracker.noise import range_noise
+from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.tops import facing_up, one_object, split_by_tops
-from tofcut.tracker.tracks import Track, TrackedFrame
+from tofcut.tracker.tracks import TrackedFrame
+
+__all__ = ["Tracker", "TrackerParams"]
 
 B = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]
 I32 = npt.NDArray[np.int32]
 
-SHAPE_FLOOR_M = 0.01
-"""No track's shape is thinner than this (1σ) in any direction."""
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
-USUAL_MEMORY = 0.995
-"""Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
 SQRT2 = math.sqrt(2.0)
 CEILING_MARGIN = 1e-6
 """Slack on the cost a label may have and still win a pixel, against rounding."""
-
-
-@dataclass(frozen=True)
-class TrackerParams:
-    """Everything the tracker's behaviour depends on, with the defaults it was built with."""
-
-    background: BackgroundParams = field(default_factory=BackgroundParams)
-    motion: MotionParams = field(default_factory=MotionParams)
-    beta: float = 2.5
-    """Weight of the 3D distance penalty (eq. 6), in the track's shape: (D−µ)ᵀΣ⁻¹(D−µ)."""
-    object_cost: float = 8.0
-    """Cost of any pixel belonging to an object: what the pixel's evidence must outweigh."""
-    deadband: float = 1.0
-    """Nearness (in noise sigmas) that costs the background nothing: plain sensor noise."""
-    background_cap: float = 40.0
-    """Most a pixel can cost the background, however far in front it stands."""
-    unknown_cost: float = 30.0
-    """Background cost where the empty scene is not known yet (a seeded target's pixels)."""
-    smoothness: float = 0.8
-    """Potts weight λ between neighbours at the same 3D place."""
-    smoothness_sigma_m: float = 0.02
-    """Neighbours this far apart in 3D are tied by λ·e^(−1/2): eq. (7) in the Potts term."""
-    confirm_frames: int = 2
-    """Frames a new region must persist before it becomes a track."""
-    min_pixels: int = 30
-    """Smaller regions are noise, not objects."""
-    connect_m: float = 0.03
-    """Neighbours farther apart than this in 3D belong to different surfaces."""
-    joined_m: float = 0.02
-    """A piece beside an object coming into view is more of it where most of the neighbours
-    across their contact are this near in 3D: a box's faces meet edge to edge, and another
-    box beside it stands a step apart."""
-    gate_m: float = 0.08
-    """A region seen again within this distance (metres) is the same candidate."""
-    max_hidden_s: float = 2.0
-    """A hidden track is predicted this long before it ends."""
-    still_s: float = 2.0
-    """A track seen within `gate_m` of one place this long while the belt would have carried
-    it twice that far is part of the machine (a gantry, a guide): it becomes scenery."""
-    whole_fraction: float = 0.85
-    """A view within this share of the track's usual size (either way) shows the whole
-    object, and is measured; others are partial (occlusion) or tainted."""
-    keep_clear_m: float = 0.15
-    """Pixels this near a track's surface are not learned as scenery: they are likely parts
-    of it the cut missed (a target standing in view from the first frame, its feet)."""
-    seed_radius_m: float = 1.0
-    """A seeded target is what lies within this distance of its seed, connected to it in
-    the image."""
-    surface_weight: float = 0.2
-    """Weight of the distance from the track's predicted surface, (d/s)², added to the
-    shape's: the shape bounds an object's extent, the surface tells two neighbours apart."""
-    surface_sigma_m: float = 0.015
-    """How far (1σ) an object's surface may stray from where it was predicted, per frame."""
-    cloud_points: int = 400
-    """Points kept of each track's surface for that distance (a fixed subsample)."""
-    split_share: float = 0.2
-    """A track whose mask holds two surfaces (apart by `connect_m` steps), the smaller at
-    least this share of it or `split_pixels`, holds two objects..."""
-    split_pixels: int = 100
-    """...(a box coming into view beside a bigger one is a small share of their mask)..."""
-    split_frames: int = 3
-    """...when it does so this many frames running: the surfaces are then dealt out again."""
-    rigid: bool = True
-    """Whether the targets are rigid (boxes and parts on a line: a view is measured only when
-    it shows the whole object, and touching surfaces a step apart are different objects) or
-    may bend (a walking person: every view is measured, and what stands out beside it is a
-    limb). A property of the targets, chosen by the user: not inferred from the belt."""
-
-    def __post_init__(self) -> None:
-        positive = {
-            "beta": self.beta,
-            "object_cost": self.object_cost,
-            "smoothness_sigma_m": self.smoothness_sigma_m,
-            "gate_m": self.gate_m,
-            "max_hidden_s": self.max_hidden_s,
-            "still_s": self.still_s,
-            "seed_radius_m": self.seed_radius_m,
-            "keep_clear_m": self.keep_clear_m,
-            "surface_sigma_m": self.surface_sigma_m,
-            "joined_m": self.joined_m,
-        }
-        for name, value in positive.items():
-            if not value > 0:
-                raise SegmentError(f"TrackerParams.{name} must be positive, got {value}")
-        if self.cloud_points < 1:
-            raise SegmentError("cloud_points must be at least 1")
-        if self.smoothness < 0 or self.deadband < 0 or self.surface_weight < 0:
-            raise SegmentError("smoothness, deadband and surface_weight must not be negative")
-        if self.background_cap <= self.object_cost:
-            raise SegmentError("background_cap must exceed object_cost, or nothing is ever found")
-        if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1 or self.split_pixels < 1:
-            raise SegmentError(
-                "split_share must be in (0, 0.5], split_frames and split_pixels at least 1"
-            )
-        if self.confirm_frames < 1 or self.min_pixels < 1:
-            raise SegmentError("confirm_frames and min_pixels must be at least 1")
-        if not 0.0 < self.whole_fraction <= 1.0:
-            raise SegmentError("whole_fraction must be in (0, 1]")
-
-
-@dataclass(eq=False)
-class _Live:
-    """A track's state between frames."""
-
-    id: int
-    filter: ConstantVelocity
-    shape: F64
-    """3×3 covariance of the object's points: its size and orientation."""
-    cloud: F64
-    """(N, 3) a subsample of the object's surface, where it is predicted to be now."""
-    usual_pixels: float = 0.0
-    """The object's size in pixels when seen whole (slowly forgetting the largest view)."""
-    measured: bool = False
-    """Whether the last frame measured the track (a whole, untainted view)."""
-    hidden_s: float = 0.0
-    hidden_frames: int = 0
-    split_frames: int = 0
-    """Frames running in which the track's mask held two surfaces."""
-    anchor: F64 | None = None
-    """Where the track has been seen staying, and for how long (`still_s`)."""
-    still_s: float = 0.0
-    seed: F64 | None = None
-    """A seeded target's seed point, from its centroid."""
-    last: Track | None = None
 
 
 @dataclass(eq=False)
@@ -242,40 +115,10 @@ def _touching_pieces(
     return dict(zip(ids.tolist(), groups, strict=True))
 
 
-def _subsample(points: F64, n: int) -> F64:
-    """At most n of the points, evenly spread through the array (deterministic)."""
-    if len(points) <= n:
-        return points
-    return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
-
-
-@functools.lru_cache(maxsize=4)
-def _floor_cov(floor_m: float) -> F64:
-    """`np.eye(3) * floor_m**2`, made once (read-only)."""
-    out = np.eye(3) * floor_m**2
-    out.flags.writeable = False
-    return out
-
-
 @functools.lru_cache(maxsize=4)
 def _no_spread(shape: tuple[int, int]) -> F64:
     """`np.zeros(shape)`, made once (never written to)."""
     return np.zeros(shape)
-
-
-def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
-    """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
-    object reaches down to the belt, though the camera sees mostly its top: the spread
-    along the belt's normal is at least that of a solid from the belt to its top."""
-    cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
-    cov = cov + _floor_cov(floor_m)
-    if belt is not None and len(points):
-        n = belt.normal
-        top = stats.percentile((points - belt.point) @ n, 90)
-        missing = top * top / 3.0 - float(n @ cov @ n)
-        if missing > 0:
-            cov = cov + missing * np.outer(n, n)
-    return np.asarray(cov)
 
 
 class Tracker:
@@ -291,16 +134,13 @@ class Tracker:
         self._belt_laid = False
         """Whether the belt has been put under what stood on it while the scenery was learned."""
         self.background: BackgroundModel | None = None
-        self._tracks: list[_Live] = []
+        self._tracks: list[LiveTrack] = []
         self._candidates: list[_Candidate] = []
         self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
         self._next_id = 1
         self._last_time_us: int | None = None
         self._joining: dict[tuple[int, int], int] = {}
         """Pairs of tracks seen as faces of one object, and for how many frames running."""
-        self._sorted: dict[int, tuple[F64, F64, int]] = {}
-        """Per track id: its cloud, arranged for `distance_kernels.track_distances`, and the
-        axis."""
         compiled.warm_up()
         p = self.params
         self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
@@ -347,19 +187,7 @@ class Tracker:
         noise = range_noise(frame, p.background.min_sigma_m)
         born = self._take_seeds(frame)
         for t in self._tracks:
-            before = t.filter.position
-            t.filter.predict(dt)
-            if prior is not None and not t.measured:
-                # unseen, an object keeps the belt's pace; seen, its own motion decides
-                # (not everything in view rides the belt)
-                t.filter.follow_belt(prior)
-            shift = t.filter.position - before
-            moved = t.cloud + shift
-            kept = self._sorted.get(t.id)
-            if kept is not None and kept[0] is t.cloud:
-                # a surface moved as a whole keeps its arrangement: move that along too
-                self._sorted[t.id] = (moved, kept[1] + shift, kept[2])
-            t.cloud = moved
+            t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
         labels = self._segment(frame, noise) if ready else self._grown(frame)
@@ -367,8 +195,6 @@ class Tracker:
         born += found
         if ready and prior is not None:
             ended += self._to_scenery(frame, labels, prior, dt, noise)
-        for gone in ended:
-            self._sorted.pop(gone, None)
         if ready:
             self.background.update(frame, labels == 0, noise, self._track_points(), p.keep_clear_m)
         else:
@@ -396,18 +222,10 @@ class Tracker:
         p = self.params
         bg = self.background
         assert bg is not None
-        runs = prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m
+        runs = bool(prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
         ended = []
         for t in list(self._tracks):
-            pos = t.filter.position
-            if not (runs and t.measured):
-                t.anchor, t.still_s = None, 0.0
-                continue
-            if t.anchor is None or np.linalg.norm(pos - t.anchor) > p.gate_m:
-                t.anchor, t.still_s = pos, 0.0
-                continue
-            t.still_s += dt
-            if t.still_s > p.still_s:
+            if t.stays_put(dt, runs):
                 mask = labels == t.id
                 bg.absorb(frame, mask, noise)
                 labels[mask] = 0
@@ -434,7 +252,7 @@ class Tracker:
                     raise SegmentError(f"seed pixel {pixel} is not valid in this frame")
             seed = frame.xyz[v, u]
             pts = frame.xyz[self._region(frame, seed)]
-            born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
+            born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, self.belt)))
             self._tracks[-1].seed = seed - self._tracks[-1].filter.position
         self._seeds.clear()
         return born
@@ -469,8 +287,7 @@ class Tracker:
         return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
 
     def _start(self, points: F64, shape: F64, velocity: F64 | None = None) -> int:
-        motion = ConstantVelocity(points.mean(axis=0), self.params.motion, velocity)
-        track = _Live(self._next_id, motion, shape, _subsample(points, self.params.cloud_points))
+        track = LiveTrack(self._next_id, points, shape, self.params, velocity)
         self._next_id += 1
         self._tracks.append(track)
         return track.id
@@ -581,7 +398,7 @@ class Tracker:
         return self._distances_from(self._tracks, points, noise)[0]
 
     def _distances_from(
-        self, tracks: list[_Live], points: F64, noise: F64, ceiling: F64 | None = None
+        self, tracks: list[LiveTrack], points: F64, noise: F64, ceiling: F64 | None = None
     ) -> tuple[F64, F64]:
         """`_distances` from some tracks; given a `ceiling` per point (the most a label may
         cost there and still win it), the surface is only measured where the shape's
@@ -601,27 +418,26 @@ class Tracker:
         )  # fmt: skip
         return out
 
-    def _surfaces(self, tracks: list[_Live]) -> tuple[F64, I64, I64]:
+    def _surfaces(self, tracks: list[LiveTrack]) -> tuple[F64, I64, I64]:
         """The tracks' surfaces as `distance_kernels.track_distances` takes them: all the clouds in
         one array, each arranged by `distance_kernels.sort_surfaces`, where each starts, and the
         axis each is sorted along (kept per track while its cloud stays the same)."""
-        stale = [
-            t for t in tracks if (kept := self._sorted.get(t.id)) is None or kept[0] is not t.cloud
-        ]
+        stale = [t for t in tracks if t.surface is None]
         if stale:  # sorted all in one call
             bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
             cloud, axis = distance_kernels.sort_surfaces(
                 np.concatenate([t.cloud for t in stale]), bounds
             )
             for k, t in enumerate(stale):
-                self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
+                t.surface = SortedSurface(cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
             if len(stale) == len(tracks):  # all of them, in order
                 return cloud, bounds, axis
         starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
         if not tracks:
             return _NO_POINTS, starts, np.zeros(0, np.int64)
-        clouds = np.concatenate([self._sorted[t.id][1] for t in tracks])
-        return clouds, starts, np.array([self._sorted[t.id][2] for t in tracks], np.int64)
+        surfaces = [t.surface for t in tracks if t.surface is not None]
+        clouds = np.concatenate([s.points for s in surfaces])
+        return clouds, starts, np.array([s.axis for s in surfaces], np.int64)
 
     # --- measuring tracks and finding new objects ------------------------------------------
 
@@ -677,7 +493,7 @@ class Tracker:
         """Update every track from its mask, and look for new objects; (born, ended) ids."""
         p = self.params
         ended: list[int] = []
-        keep: list[_Live] = []
+        keep: list[LiveTrack] = []
         born = self._reconcile(frame, labels, noise)
         ended += self._join(frame, labels, noise)
         ready = self.background is not None and self.background.ready
@@ -718,38 +534,13 @@ class Tracker:
                         labels[seen] = t.id
                         box = _box_of(seen)
                         pts = frame.xyz[seen]
-                m = len(pts)
-                usual = t.usual_pixels
-                # a partial view (occlusion) or a tainted one (something else taken in) is
-                # not measured: its centroid is off, so the track coasts on its prediction,
-                # and its shape and surface stay as last seen whole, moved on with it
-                whole = p.whole_fraction * usual <= m and (
-                    entering or m * p.whole_fraction <= usual
-                )
-                # a target that bends (a person) shows all of itself in every view
-                t.measured = usual == 0 or whole or not p.rigid
-                if t.measured:
-                    t.filter.correct(measure_kernels.point_stats(pts)[0])  # pts.mean(axis=0)
-                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-                    t.cloud = _subsample(pts, p.cloud_points)
-                    t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
-                t.hidden_s = 0.0
-                t.hidden_frames = 0
-                t.last = _seen(t, pts, box)
+                t.see(pts, box, entering, self.belt)
             else:
                 if box is not None:
                     labels[box][mask] = 0
-                t.measured = False
-                t.hidden_s += dt
-                t.hidden_frames += 1
-                if t.hidden_s > p.max_hidden_s or not self._in_view(frame, t):
+                if not t.coast(dt, frame):
                     ended.append(t.id)
                     continue
-                pos = t.filter.position
-                t.last = Track(
-                    t.id, pos, t.filter.velocity, pos, pos, (0, 0, 0, 0), 0,
-                    np.zeros((0, 3), np.float32), t.hidden_frames,
-                )  # fmt: skip
             keep.append(t)
         self._tracks = keep
         if pieces is not None:
@@ -776,12 +567,7 @@ class Tracker:
             self._tracks = [t for t in self._tracks if t.id != younger]
             labels[labels == younger] = older
             ended.append(younger)
-            pts = frame.xyz[labels == older]
-            # what it holds now is a new view of it: its state starts again from this view
-            keep.filter = ConstantVelocity(pts.mean(axis=0), p.motion, keep.filter.velocity)
-            keep.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-            keep.cloud = _subsample(pts, p.cloud_points)
-            keep.usual_pixels = 0.0
+            keep.restart(frame.xyz[labels == older], self.belt)
         self._joining = {k: v for k, v in self._joining.items() if not set(k) & set(ended)}
         return ended
 
@@ -828,7 +614,7 @@ class Tracker:
                 # it moved with the track that held most of it
                 carrier = self._tracks[int(np.argmax(held[:, r]))].filter.velocity
                 pts = frame.xyz[surface]
-                shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
+                shape = shape_of(pts, SHAPE_FLOOR_M, self.belt)
                 labels[surface] = self._start(pts, shape, carrier)
                 born.append(int(labels[surface][0]))
         for k in involved.tolist():
@@ -837,25 +623,8 @@ class Tracker:
             pts = frame.xyz[labels == t.id]
             if len(pts) < p.min_pixels:
                 continue
-            # what it holds now is a new view of it: its state starts again from this view
-            velocity = t.filter.velocity
-            t.filter = ConstantVelocity(pts.mean(axis=0), p.motion, velocity)
-            t.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-            t.cloud = _subsample(pts, p.cloud_points)
-            t.usual_pixels = 0.0
+            t.restart(pts, self.belt)
         return born
-
-    def _in_view(self, frame: Frame, t: _Live) -> bool:
-        """Whether the predicted centroid still falls on the sensor."""
-        pos = t.filter.position
-        if pos[2] <= 0:
-            return False
-        # the sensor's field of view, from its corner pixels, in normalised coordinates
-        corners = frame.xyz[[0, 0, -1, -1], [0, -1, 0, -1]]
-        xs = corners[:, 0] / corners[:, 2]
-        ys = corners[:, 1] / corners[:, 2]
-        x, y = pos[0] / pos[2], pos[1] / pos[2]
-        return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
 
     def _continuing(
         self,
@@ -922,11 +691,11 @@ class Tracker:
             match.seen += 1
             match.centroid = centroid
             if match.seen >= p.confirm_frames:
-                born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
+                born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, self.belt)))
                 t = self._tracks[-1]
                 labels[piece] = t.id
                 t.usual_pixels = float(len(pts))
-                t.last = _seen(t, pts, _box_of(piece))
+                t.last = t.report(pts, _box_of(piece))
             else:
                 next_candidates.append(match)
         self._candidates = next_candidates
@@ -1009,15 +778,6 @@ def _box_of(mask: B) -> tuple[slice, slice]:
     """The bounding slices (rows, columns) of a mask that is not empty."""
     rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
-def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
-    """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
-    bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
-    centroid, lo, hi = measure_kernels.point_stats(pts)
-    return Track(
-        t.id, centroid, t.filter.velocity, lo, hi, bbox, len(pts), pts.astype(np.float32),
-    )  # fmt: skip
 
 
 def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
