@@ -292,17 +292,24 @@ def test_grouping_is_a_stable_argsort():
 
 
 def test_every_step_the_reference_replaces_is_still_a_step_of_the_tracker():
-    # the reference overrides the tracker's steps by name: a step renamed or removed in the
-    # tracker would leave the reference's version unused, and the equivalence tests above
-    # would compare the compiled path with itself
+    # the reference's parts override the tracker's steps by name: a step renamed or removed
+    # in the tracker would leave the reference's version unused, and the equivalence tests
+    # above would compare the compiled path with itself
     from tofcut.tracker.background import BackgroundModel
-    from tofcut.tracker.reference import ReferenceBackground
+    from tofcut.tracker.cut import JointCut
+    from tofcut.tracker.pieces import Pieces
+    from tofcut.tracker.reference import ReferenceBackground, ReferenceCut, ReferencePieces
 
-    own_helpers = {"_ties"}  # the reference's own, called by its steps
-    for ref, base in ((ReferenceTracker, Tracker), (ReferenceBackground, BackgroundModel)):
+    parts = {"background_model": BackgroundModel, "cut_model": JointCut, "pieces_model": Pieces}
+    for name, base in parts.items():
+        assert getattr(Tracker, name) is base
+        assert issubclass(getattr(ReferenceTracker, name), base)
+    for ref, base in (
+        (ReferenceCut, JointCut), (ReferencePieces, Pieces), (ReferenceBackground, BackgroundModel)
+    ):  # fmt: skip
         replaced = {
             name for name, value in vars(ref).items()
-            if callable(value) and not name.startswith("__") and name not in own_helpers
+            if callable(value) and not name.startswith("__")
         }  # fmt: skip
         assert replaced, ref
         missing = [name for name in replaced if not callable(getattr(base, name, None))]

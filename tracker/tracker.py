@@ -22,9 +22,6 @@ holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
 from __future__ import annotations
 
 import dataclasses
-import functools
-import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,30 +32,17 @@ from scipy.optimize import linear_sum_assignment
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import (
-    background_kernels,
-    compiled,
-    components_kernels,
-    cut_kernels,
-    distance_kernels,
-    measure_kernels,
-    pieces_kernels,
-    stats_kernels,
-)
-from tofcut.tracker.background import (
-    MEDIAN_NOISE_SHARE,
-    BackgroundModel,
-    on_belt_height,
-    standing_regions,
-)
+from tofcut.tracker import compiled, measure_kernels
+from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, SortedSurface, shape_of
-from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
-from tofcut.tracker.neighbours import EIGHT, FACTORS, pair_slices
+from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, shape_of
+from tofcut.tracker.neighbours import EIGHT, pair_slices
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.params import TrackerParams
-from tofcut.tracker.tops import facing_up, one_object, split_by_tops
+from tofcut.tracker.pieces import Pieces
+from tofcut.tracker.tops import facing_up, one_object
 from tofcut.tracker.tracks import TrackedFrame
 
 __all__ = ["Tracker", "TrackerParams"]
@@ -69,9 +53,6 @@ I32 = npt.NDArray[np.int32]
 
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
-SQRT2 = math.sqrt(2.0)
-CEILING_MARGIN = 1e-6
-"""Slack on the cost a label may have and still win a pixel, against rounding."""
 
 
 @dataclass(eq=False)
@@ -81,7 +62,6 @@ class _Candidate:
 
 
 _NONE = np.zeros((0, 0), bool)
-_NO_POINTS = np.zeros((0, 3))
 
 
 def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
@@ -115,16 +95,12 @@ def _touching_pieces(
     return dict(zip(ids.tolist(), groups, strict=True))
 
 
-@functools.lru_cache(maxsize=4)
-def _no_spread(shape: tuple[int, int]) -> F64:
-    """`np.zeros(shape)`, made once (never written to)."""
-    return np.zeros(shape)
-
-
 class Tracker:
     """Frames in, tracks out. Feed every frame in order with `update`."""
 
     background_model: type[BackgroundModel] = BackgroundModel
+    cut_model: type[JointCut] = JointCut
+    pieces_model: type[Pieces] = Pieces
 
     def __init__(
         self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
@@ -141,12 +117,9 @@ class Tracker:
         self._last_time_us: int | None = None
         self._joining: dict[tuple[int, int], int] = {}
         """Pairs of tracks seen as faces of one object, and for how many frames running."""
+        self.cut = self.cut_model(self.params)
+        self.pieces = self.pieces_model(self.params)
         compiled.warm_up()
-        p = self.params
-        self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
-        """Farthest a track's surface can be from a point it could still win, in its spread."""
-        self._most_ties = 2 * p.smoothness * float(FACTORS.sum())
-        """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     @property
     def belt(self) -> BeltGeometry | None:
@@ -190,7 +163,11 @@ class Tracker:
             t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
-        labels = self._segment(frame, noise) if ready else self._grown(frame)
+        labels = (
+            self.cut.labels(frame, noise, self._tracks, self.background)
+            if ready
+            else self._grown(frame)
+        )
         found, ended = self._measure(frame, labels, dt, noise)
         born += found
         if ready and prior is not None:
@@ -292,200 +269,7 @@ class Tracker:
         self._tracks.append(track)
         return track.id
 
-    # --- the cut --------------------------------------------------------------------------
-
-    def _background_cost(self, frame: Frame) -> F64:
-        p = self.params
-        bg = self.background
-        assert bg is not None
-        if not bg.ready:
-            return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame)
-        cost: F64 = cut_kernels.background_cost(
-            bg.range, sigma, bg.known, bg.range - nearer, frame.valid, p.deadband,
-            p.background_cap, p.unknown_cost,
-        )  # fmt: skip
-        return cost
-
-    def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
-        """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
-
-        Before the cut, pixels are fixed to the background where no labelling of their
-        neighbours could make an object label pay (object cost minus background cost above
-        the sum of the pixel's ties), and so are runs of invalid pixels (no data cost either
-        way) that touch no pixel left free; the minimum over the rest is the minimum of the
-        whole frame. A track's distance from a pixel that it could not win even at its
-        shape's distance alone is not measured (it costs inf) unless the cut needs it.
-        """
-        p = self.params
-        h, w = frame.shape
-        labels = np.zeros((h, w), np.uint16)
-        if not self._tracks:
-            return labels
-        valid = frame.valid
-        u0 = self._background_cost(frame)
-        u0[~valid] = 0.0
-        # ties only where they can matter: where the pixel's own ties could free it, and
-        # around invalid pixels (which a run of them may free)
-        near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
-        exps = cut_kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
-        wt, total = cut_kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
-        free, rows, cols, points, at, ceiling = cut_kernels.free_pixels(
-            valid, u0, total, frame.xyz, noise, p.object_cost
-        )
-        if not rows.size:
-            return labels
-        # the 3D distance term can only add cost: now fix what no track can win
-        distance, floor = self._distances_from(self._tracks, points, at, ceiling)
-        cost = cut_kernels.object_costs(
-            distance, p.object_cost, p.beta, u0, total, rows, cols, free
-        )
-        if not free.any():
-            return labels
-        if not valid.all():
-            runs, _ = ndimage.label(free | ~valid, structure=EIGHT)
-            keep = np.unique(runs[free])
-            free |= ~valid & np.isin(runs, keep[keep > 0])
-        # invalid pixels have no data cost either way; where a track's surface was not
-        # measured, `least` holds its cost from the shape alone
-        index, *nodes, unary, least, ties = cut_kernels.cut_nodes(
-            free, rows, cols, u0, total, cost, floor
-        )
-        where = (nodes[0], nodes[1])  # the nodes' pixels
-        cut_kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
-
-        def measure(tracks: I64, nodes: I64) -> None:
-            # A node never takes a label that costs more than its ties above every label
-            # it could hold: it would do better back with that one whatever its neighbours
-            # hold; such a label's cost decides no cut (it may stay inf). Others are made
-            # exact, until the labels left are all of that kind.
-            while True:
-                unmeasured = ~np.isnan(least[tracks - 1, nodes])
-                # the labels a node may hold: exact and finite (an inf one never is)
-                held = ~unmeasured & np.isfinite(unary[tracks, nodes])
-                top = unary[0].copy()
-                np.maximum.at(top, nodes[held], unary[tracks[held], nodes[held]])
-                need = unmeasured.copy()
-                at = nodes[unmeasured]
-                need[unmeasured] = (
-                    least[tracks[unmeasured] - 1, at] <= top[at] + ties[at] + CEILING_MARGIN
-                )
-                if not need.any():
-                    return
-                for label in np.unique(tracks[need]):
-                    at = nodes[need & (tracks == label)]
-                    v, u = where[0][at], where[1][at]
-                    one = [self._tracks[label - 1]]
-                    value = (
-                        p.object_cost
-                        + p.beta * self._distances_from(one, frame.xyz[v, u], noise[v, u])[0][0]
-                    )
-                    unary[label, at] = cut_kernels.add_fixed_ties_at(value, index, wt, v, u)
-                    least[label - 1, at] = np.nan
-
-        ei, ej, ew = cut_kernels.free_edges(index, wt, where[0], where[1])
-        chosen = _solve_by_parts(unary, ei, ej, ew, ties, measure)
-        ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
-        labels[where] = ids[chosen]
-        return labels
-
-    def _distances(self, points: F64, noise: F64) -> F64:
-        """(tracks, N) each point's distance cost from each track's prediction: squared
-        Mahalanobis distance in the track's shape, plus the squared distance from its
-        predicted surface in units of `surface_sigma_m`, or of the noise of the difference
-        between a point and the surface where that is more (`noise`, each point's range
-        noise; inf beyond any track's reach)."""
-        return self._distances_from(self._tracks, points, noise)[0]
-
-    def _distances_from(
-        self, tracks: list[LiveTrack], points: F64, noise: F64, ceiling: F64 | None = None
-    ) -> tuple[F64, F64]:
-        """`_distances` from some tracks; given a `ceiling` per point (the most a label may
-        cost there and still win it), the surface is only measured where the shape's
-        distance alone leaves the cost below it: elsewhere the distance is inf, and the
-        second array holds the cost from the shape alone (nan where measured)."""
-        p = self.params
-        if ceiling is None:
-            ceiling = np.full(len(points), np.inf)
-        clouds, starts, axes = self._surfaces(tracks)
-        spread = np.maximum(p.surface_sigma_m, SQRT2 * noise)
-        out: tuple[F64, F64] = distance_kernels.track_distances(
-            points, ceiling + CEILING_MARGIN,
-            np.array([t.filter.position for t in tracks]).reshape(-1, 3),
-            np.linalg.inv(np.array([t.shape for t in tracks]).reshape(-1, 3, 3)),
-            clouds, starts, axes, p.object_cost, p.beta, p.surface_weight, spread,
-            spread.max(initial=0.0) * self._reach_per_sigma,
-        )  # fmt: skip
-        return out
-
-    def _surfaces(self, tracks: list[LiveTrack]) -> tuple[F64, I64, I64]:
-        """The tracks' surfaces as `distance_kernels.track_distances` takes them: all the clouds in
-        one array, each arranged by `distance_kernels.sort_surfaces`, where each starts, and the
-        axis each is sorted along (kept per track while its cloud stays the same)."""
-        stale = [t for t in tracks if t.surface is None]
-        if stale:  # sorted all in one call
-            bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
-            cloud, axis = distance_kernels.sort_surfaces(
-                np.concatenate([t.cloud for t in stale]), bounds
-            )
-            for k, t in enumerate(stale):
-                t.surface = SortedSurface(cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
-            if len(stale) == len(tracks):  # all of them, in order
-                return cloud, bounds, axis
-        starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
-        if not tracks:
-            return _NO_POINTS, starts, np.zeros(0, np.int64)
-        surfaces = [t.surface for t in tracks if t.surface is not None]
-        clouds = np.concatenate([s.points for s in surfaces])
-        return clouds, starts, np.array([s.axis for s in surfaces], np.int64)
-
     # --- measuring tracks and finding new objects ------------------------------------------
-
-    def _loose(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64
-    ) -> npt.NDArray[np.int32]:
-        """Pieces of surface that stand out of the scenery and no track took, split where
-        neighbours are farther apart in 3D than `connect_m` (touching objects of different
-        heights come apart; one object's pixels stay together)."""
-        bg = self.background
-        assert bg is not None
-        q = bg.params
-        body = background_kernels.standing_out(
-            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
-            q.min_height_m,
-        )  # fmt: skip
-        body |= standing_regions(
-            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
-        )
-        if self.params.rigid and self.belt is not None:
-            body[body] = on_belt_height(frame.xyz[body], self.belt)
-        # a step of `connect_m` parts touching objects of different heights, or three
-        # times the noise where that is more: a surface in loud noise is not broken into
-        # specks by steps within the noise
-        return self._pieces(frame, body, noise)
-
-    def _pieces(
-        self, frame: Frame, body: B, noise: F64, step_noise: bool = True
-    ) -> npt.NDArray[np.int32]:
-        """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
-        `connect_m`, or, given the range noise, than three times the noise of their
-        difference where that is more (a seed on a far, dark target); the pixel on the far
-        side of such a step is left out."""
-        xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
-        spread2 = 9.0 * noise**2 if step_noise else _no_spread(frame.shape)
-        body = pieces_kernels.cut_at_steps(body, xyz, rng, self.params.connect_m**2, spread2)
-        pieces: npt.NDArray[np.int32] = components_kernels.label_pieces(body)
-        return self._by_tops(xyz, body, pieces, noise)
-
-    def _by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64) -> I32:
-        """Rigid objects on a known belt: a piece holding two tops is two objects
-        (`tofcut.tracker.tops`); others as they are."""
-        if not self.params.rigid or self.belt is None or pieces.max() < 1:
-            return pieces
-        up = facing_up(body, xyz, noise, self.belt)
-        if up is None:
-            return pieces
-        return split_by_tops(pieces, up, xyz, noise, self.belt, self.params.min_pixels)
 
     def _measure(
         self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
@@ -496,8 +280,12 @@ class Tracker:
         keep: list[LiveTrack] = []
         born = self._reconcile(frame, labels, noise)
         ended += self._join(frame, labels, noise)
-        ready = self.background is not None and self.background.ready
-        pieces = self._loose(frame, labels, noise) if ready else None
+        bg = self.background
+        pieces = (
+            self.pieces.loose(frame, labels, noise, bg, self.belt)
+            if bg is not None and bg.ready
+            else None
+        )
         # across a 3D step, what stands out lies past the seam the step leaves
         seam = 1 if p.rigid else 2
         touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
@@ -579,7 +367,7 @@ class Tracker:
         p = self.params
         if not p.rigid or not self._tracks:
             return []  # a person's limbs are not other people
-        pieces = self._pieces(frame, labels > 0, noise, step_noise=False)
+        pieces = self.pieces.split(frame, labels > 0, noise, self.belt, step_noise=False)
         n_pieces = int(pieces.max()) + 1
         row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
         for k, t in enumerate(self._tracks):
@@ -673,7 +461,11 @@ class Tracker:
                 continue
             pts = frame.xyz[piece]
             centroid = pts.mean(axis=0)
-            if self._tracks and np.median(self._distances(pts, noise[piece]).min(axis=0)) < claim:
+            if (
+                self._tracks
+                and np.median(self.cut.distances(self._tracks, pts, noise[piece]).min(axis=0))
+                < claim
+            ):
                 continue
             found.append((centroid, pts, piece))
         born = []
@@ -711,23 +503,6 @@ def _solid(piece: B, min_pixels: int) -> bool:
         return True  # coming into view: a sliver of it first
     core = ndimage.binary_erosion(piece[box], EIGHT)
     return int(np.count_nonzero(core)) * 2 >= min_pixels
-
-
-def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F64, F64]:
-    """The points, ranges and noise of `body` for finding its surfaces: where the range noise
-    is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
-    neighbours in `body` (a step between two objects stands out of that median's smaller
-    noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
-    loud = body & (noise * 3.0 >= step_m)
-    if not loud.any():
-        return frame.xyz, frame.range, noise
-    rng = stats_kernels.median3_within(frame.range, body, loud)
-    moved = loud & (frame.range != 0)
-    xyz = frame.xyz.copy()
-    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
-    quiet = noise.copy()
-    quiet[loud] *= MEDIAN_NOISE_SHARE
-    return xyz, rng, quiet
 
 
 def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
@@ -792,44 +567,3 @@ def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
     if home == 0:
         return False
     return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())
-
-
-def _solve_by_parts(
-    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[I64, I64], None]
-) -> I64:
-    """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
-    and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part. `measure(labels, nodes)` is given the
-    labels and nodes of the parts with more than two labels, before they are cut (their
-    costs may be inf where the label cannot win)."""
-    n = unary.shape[1]
-    # chosen: each node's cheapest label, right for every node without edges
-    # contenders: how many labels may win each part an edge joins (0 elsewhere)
-    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders = (
-        cut_kernels.split_parts(unary, i, j, ties)
-    )
-    local = np.empty(n, np.int64)
-    multi = [
-        (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
-         np.nonzero(can_win[:, k])[0])
-        for k in np.nonzero(contenders > 2)[0]
-    ]  # fmt: skip
-    # every label's costs exact wherever a cut of more than two labels may weigh them;
-    # with two, a cost left inf is one the track cannot win whatever the neighbours hold
-    if multi:
-        measure(
-            np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi]),
-            np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi]),
-        )
-    for part, edges, labels in multi:
-        local[part] = np.arange(part.size)
-        problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
-        chosen[part] = labels[solve_potts(problem)]
-    binary = contenders == 2
-    if binary.any():
-        # every part where one track meets the background: one exact cut for them all
-        nodes, track, pair, bi, bj, bw = cut_kernels.binary_parts(
-            unary, i, j, w, part_of, order, edge_order, binary, can_win
-        )
-        chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)
-    return chosen
