@@ -1,98 +1,46 @@
-"""The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`.
+"""The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`, the per-frame step.
 
 Each frame: every track predicts its 3D position (constant velocity; unseen, at the belt's
-pace); all tracks and the background then compete for the pixels in one Potts energy
-(α-expansion, `tofcut.tracker.multicut`) whose data term is the paper's eq. (6): a pixel's
-cost for track k grows with its 3D distance from the track's prediction, measured in the
-track's own shape (so a person and a box are both "near" over their own extent) and from
+pace: `tofcut.tracker.live_track`); all tracks and the background then compete for the
+pixels in one Potts energy (`tofcut.tracker.cut`) whose data term is the paper's eq. (6): a
+pixel's cost for track k grows with its 3D distance from the track's prediction, measured in
+the track's own shape (so a person and a box are both "near" over their own extent) and from
 its predicted surface (so two touching objects are told apart), and its cost for the
-background with how far it stands out in front of the empty-scene range model. Pixels no
-track can win whatever their neighbours do are fixed to the background before the cut, so
-the graph holds only the pixels that matter. What stands out and no track can claim, two
-frames running, becomes a new track. Rigid objects on a belt: a track holding two touching
-surfaces (a step apart, or two tops at different heights: `tofcut.tracker.tops`) for a few
-frames has them dealt out again (two objects that came into view as one), two tracks that
-meet at a convex edge with no step are faces of one object and become one, and a track that
-stays put while the belt runs becomes scenery. Each pixel's range noise
-(`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
-(`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
-holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
+background with how far it stands out in front of the empty-scene range model
+(`tofcut.tracker.background`). The tracks are then measured from their masks, and what
+stands out and no track can claim, two frames running, becomes a new track
+(`tofcut.tracker.roster`, on the pieces of what stands out: `tofcut.tracker.pieces`). Rigid
+objects on a belt: a track holding two touching surfaces (a step apart, or two tops at
+different heights: `tofcut.tracker.tops`) for a few frames has them dealt out again (two
+objects that came into view as one), two tracks that meet at a convex edge with no step are
+faces of one object and become one, and a track that stays put while the belt runs becomes
+scenery. Each pixel's range noise (`tofcut.tracker.noise`) scales what counts as near on
+far, dark targets. The belt is given (`Tracker(belt=...)`) or set when it becomes known
+(`tracker.belt = ...`, as the run's belt holder does with a belt found from the frames,
+`tofcut.tracker.belt_finder`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
-from scipy import ndimage
-from scipy.optimize import linear_sum_assignment
 
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import compiled, measure_kernels
+from tofcut.tracker import compiled
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, shape_of
-from tofcut.tracker.neighbours import EIGHT, pair_slices
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
-from tofcut.tracker.tops import facing_up, one_object
+from tofcut.tracker.roster import Roster, Seed
 from tofcut.tracker.tracks import TrackedFrame
 
 __all__ = ["Tracker", "TrackerParams"]
-
-B = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
-I32 = npt.NDArray[np.int32]
-
-MIN_PIECE = 5
-"""Pieces smaller than this are noise, not more of an object coming into view."""
-
-
-@dataclass(eq=False)
-class _Candidate:
-    centroid: F64
-    seen: int = 1
-
-
-_NONE = np.zeros((0, 0), bool)
-
-
-def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
-    """Whether a box (a mask's bounding slices) touches the edge of the image."""
-    rows, cols = box
-    return bool(
-        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
-    )
-
-
-def _touching_pieces(
-    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], reach: int
-) -> dict[int, npt.NDArray[np.int32]]:
-    """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
-    its mask: `pieces[binary_dilation(labels == id, EIGHT, reach)]`, for all tracks at
-    once."""
-    h, w = labels.shape
-    found = []
-    for dv in range(-reach, reach + 1):
-        for du in range(-reach, reach + 1):
-            here = labels[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)]
-            there = pieces[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
-            both = (here > 0) & (there > 0)
-            if both.any():
-                found.append(here[both].astype(np.int64) << 32 | there[both].astype(np.int64))
-    if not found:
-        return {}
-    pairs = np.unique(np.concatenate(found))
-    ids, rows = np.unique(pairs >> 32, return_index=True)
-    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
-    return dict(zip(ids.tolist(), groups, strict=True))
 
 
 class Tracker:
@@ -110,15 +58,13 @@ class Tracker:
         self._belt_laid = False
         """Whether the belt has been put under what stood on it while the scenery was learned."""
         self.background: BackgroundModel | None = None
-        self._tracks: list[LiveTrack] = []
-        self._candidates: list[_Candidate] = []
-        self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
-        self._next_id = 1
         self._last_time_us: int | None = None
-        self._joining: dict[tuple[int, int], int] = {}
-        """Pairs of tracks seen as faces of one object, and for how many frames running."""
         self.cut = self.cut_model(self.params)
+        """The joint cut of all tracks (`tofcut.tracker.cut`)."""
         self.pieces = self.pieces_model(self.params)
+        """What stands out, in pieces (`tofcut.tracker.pieces`)."""
+        self.roster = Roster(self.params, self.cut, self.pieces)
+        """The live tracks, measured and created (`tofcut.tracker.roster`)."""
         compiled.warm_up()
 
     @property
@@ -144,7 +90,7 @@ class Tracker:
             point = np.asarray(point, float)
             if point.shape != (3,) or not np.isfinite(point).all():
                 raise SegmentError(f"a target point must be three finite numbers, got {point!r}")
-        self._seeds.append((pixel, point))
+        self.roster.add_seed(Seed(pixel, point))
 
     def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
         """Track one frame; `prior` is the belt's velocity now, when known."""
@@ -158,24 +104,26 @@ class Tracker:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
         self._last_time_us = frame.device_time_us
         noise = range_noise(frame, p.background.min_sigma_m)
-        born = self._take_seeds(frame)
-        for t in self._tracks:
+        born = self.roster.take_seeds(frame, self.belt)
+        for t in self.roster.tracks:
             t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
         labels = (
-            self.cut.labels(frame, noise, self._tracks, self.background)
+            self.cut.labels(frame, noise, self.roster.tracks, self.background)
             if ready
-            else self._grown(frame)
+            else self.roster.grown(frame)
         )
-        found, ended = self._measure(frame, labels, dt, noise)
-        born += found
+        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt)
+        born += measured.born
+        ended = list(measured.ended)
         if ready and prior is not None:
-            ended += self._to_scenery(frame, labels, prior, dt, noise)
+            ended += self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+        occupied = self.roster.points()
         if ready:
-            self.background.update(frame, labels == 0, noise, self._track_points(), p.keep_clear_m)
+            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m)
         else:
-            self.background.learn(frame, noise, self._track_points(), p.keep_clear_m)
+            self.background.learn(frame, noise, occupied, p.keep_clear_m)
         if not self._belt_laid and self.background.ready and self.belt is not None:
             # what stood on the belt while the scenery was learned is not scenery: the
             # belt goes under it, once the scenery and the belt are both known
@@ -183,326 +131,8 @@ class Tracker:
             self._belt_laid = True
         if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
             self.background.hold_belt(frame, self.belt, noise)
-        out = tuple(t.last for t in self._tracks if t.last is not None)
+        out = tuple(t.last for t in self.roster.tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
-
-    def _to_scenery(
-        self,
-        frame: Frame,
-        labels: npt.NDArray[np.uint16],
-        prior: VelocityPrior,
-        dt: float,
-        noise: F64,
-    ) -> list[int]:
-        """End the tracks that stay put while the belt runs, their pixels becoming scenery
-        (`still_s`); their ids. Changes `labels`."""
-        p = self.params
-        bg = self.background
-        assert bg is not None
-        runs = bool(prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
-        ended = []
-        for t in list(self._tracks):
-            if t.stays_put(dt, runs):
-                mask = labels == t.id
-                bg.absorb(frame, mask, noise)
-                labels[mask] = 0
-                self._tracks.remove(t)
-                ended.append(t.id)
-        return ended
-
-    # --- seeds ----------------------------------------------------------------------------
-
-    def _take_seeds(self, frame: Frame) -> list[int]:
-        """Start the targets given by the user, each as the region round its seed
-        (`_region`), so it is followed whole from the first frame."""
-        born = []
-        h, w = frame.shape
-        for pixel, point in self._seeds:
-            if pixel is None:
-                assert point is not None
-                v, u = _nearest_pixel(frame, point)
-            else:
-                u, v = pixel
-                if not (0 <= u < w and 0 <= v < h):
-                    raise SegmentError(f"seed pixel {pixel} is outside the {w}x{h} frame")
-                if not frame.valid[v, u]:
-                    raise SegmentError(f"seed pixel {pixel} is not valid in this frame")
-            seed = frame.xyz[v, u]
-            pts = frame.xyz[self._region(frame, seed)]
-            born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, self.belt)))
-            self._tracks[-1].seed = seed - self._tracks[-1].filter.position
-        self._seeds.clear()
-        return born
-
-    def _region(self, frame: Frame, centre: F64) -> B:
-        """A seeded target: the pixels within `seed_radius_m` of the 3D point `centre`
-        connected in the image to the one nearest it (the paper's µ_d and its 3D distance:
-        a body, an arm in front of it and the legs below it, but not the floor and walls
-        beyond that distance)."""
-        v, u = _nearest_pixel(frame, centre)
-        ball = frame.valid & (
-            np.linalg.norm(frame.xyz - centre, axis=-1) < self.params.seed_radius_m
-        )
-        ball[v, u] = True
-        parts, _ = ndimage.label(ball, EIGHT)
-        region: B = parts == parts[v, u]
-        return region
-
-    def _grown(self, frame: Frame) -> npt.NDArray[np.uint16]:
-        """Labels while the scenery is being learned: each seeded track is the region round
-        its seed, moved on with the track (a cut needs the scenery; pixels left out of the
-        target now would be learned as scenery)."""
-        labels = np.zeros(frame.shape, np.uint16)
-        for t in self._tracks:
-            if t.seed is not None:
-                region = self._region(frame, t.filter.position + t.seed)
-                labels[region & (labels == 0)] = t.id
-        return labels
-
-    def _track_points(self) -> F64:
-        """(N, 3) every track's predicted surface points."""
-        return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
-
-    def _start(self, points: F64, shape: F64, velocity: F64 | None = None) -> int:
-        track = LiveTrack(self._next_id, points, shape, self.params, velocity)
-        self._next_id += 1
-        self._tracks.append(track)
-        return track.id
-
-    # --- measuring tracks and finding new objects ------------------------------------------
-
-    def _measure(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
-    ) -> tuple[list[int], list[int]]:
-        """Update every track from its mask, and look for new objects; (born, ended) ids."""
-        p = self.params
-        ended: list[int] = []
-        keep: list[LiveTrack] = []
-        born = self._reconcile(frame, labels, noise)
-        ended += self._join(frame, labels, noise)
-        bg = self.background
-        pieces = (
-            self.pieces.loose(frame, labels, noise, bg, self.belt)
-            if bg is not None and bg.ready
-            else None
-        )
-        # across a 3D step, what stands out lies past the seam the step leaves
-        seam = 1 if p.rigid else 2
-        touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
-        # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
-        corners, starts, held = measure_kernels.label_points(
-            labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
-        )
-        piece_boxes: list[tuple[slice, slice] | None] | None = None
-        for k, t in enumerate(self._tracks):
-            r0, r1, c0, c1 = corners[k].tolist()
-            box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
-            mask = labels[box] == t.id if box is not None else _NONE  # within the box
-            n = int(starts[k + 1] - starts[k])
-            if n >= p.min_pixels:
-                assert box is not None
-                pts = held[starts[k] : starts[k + 1]]
-                entering = _on_border(box, labels.shape)
-                if pieces is not None and t.id in touching:
-                    # what stands out right beside a track and goes on from its surface is
-                    # more of it: an object coming into view is bigger than its mask, one
-                    # first seen in part (a bag's rounded rim, a roll's far end) bigger than
-                    # its shape, and a person may have moved a limb where its prediction
-                    # did not reach
-                    whole_mask = np.zeros(labels.shape, bool)
-                    whole_mask[box] = mask
-                    if piece_boxes is None:
-                        piece_boxes = ndimage.find_objects(pieces)
-                    beside = self._continuing(
-                        frame, whole_mask, pieces, touching[t.id], piece_boxes
-                    )
-                    if beside.size:
-                        seen = whole_mask | np.isin(pieces, beside)
-                        pieces[seen] = 0
-                        labels[seen] = t.id
-                        box = _box_of(seen)
-                        pts = frame.xyz[seen]
-                t.see(pts, box, entering, self.belt)
-            else:
-                if box is not None:
-                    labels[box][mask] = 0
-                if not t.coast(dt, frame):
-                    ended.append(t.id)
-                    continue
-            keep.append(t)
-        self._tracks = keep
-        if pieces is not None:
-            born += self._detect(frame, pieces, labels, noise)
-        return born, ended
-
-    def _join(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
-        """Rigid objects on a known belt: two tracks whose masks meet with no step between
-        them and no two tops at different heights (`tops.one_object`) for `split_frames`
-        frames running hold faces of one object (its side seen first, a rim, the far end
-        of a roll): the younger is handed to the older. Changes `labels`; the ids ended."""
-        p = self.params
-        if not p.rigid or self.belt is None or len(self._tracks) < 2:
-            self._joining = {}
-            return []
-        up = facing_up(labels > 0, frame.xyz, noise, self.belt)
-        pairs = one_object(labels, frame.xyz, up, self.belt, p.joined_m)
-        self._joining = {pair: self._joining.get(pair, 0) + 1 for pair in pairs}
-        ended: list[int] = []
-        for (older, younger), frames in sorted(self._joining.items()):
-            if frames < p.split_frames or older in ended or younger in ended:
-                continue
-            keep = next(t for t in self._tracks if t.id == older)
-            self._tracks = [t for t in self._tracks if t.id != younger]
-            labels[labels == younger] = older
-            ended.append(younger)
-            keep.restart(frame.xyz[labels == older], self.belt)
-        self._joining = {k: v for k, v in self._joining.items() if not set(k) & set(ended)}
-        return ended
-
-    def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
-        """Deal the surfaces out again where a track has held two for `split_frames` frames
-        (two objects that came into view together, taken as one, or split along the wrong
-        line): each surface goes whole to one of the tracks holding it, most pixels kept in
-        place; a surface left over is a new track. Changes `labels`; the new tracks' ids."""
-        p = self.params
-        if not p.rigid or not self._tracks:
-            return []  # a person's limbs are not other people
-        pieces = self.pieces.split(frame, labels > 0, noise, self.belt, step_noise=False)
-        n_pieces = int(pieces.max()) + 1
-        row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
-        for k, t in enumerate(self._tracks):
-            row[t.id] = k + 1
-        held = measure_kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
-        held[:, 0] = 0
-        size = held.sum(axis=1)
-        big = (held >= p.min_pixels) & (
-            held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
-        )
-        splitting = []
-        for k, t in enumerate(self._tracks):
-            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
-            t.split_frames = t.split_frames + 1 if two else 0
-            if t.split_frames >= p.split_frames:
-                splitting.append(k)
-        if not splitting:
-            return []
-        surfaces = np.nonzero(big[splitting].any(axis=0))[0]
-        involved = np.nonzero((held[:, surfaces] >= p.min_pixels).any(axis=1))[0]
-        rows, cols = linear_sum_assignment(held[np.ix_(involved, surfaces)], maximize=True)
-        owner = dict(zip(surfaces[cols].tolist(), involved[rows].tolist(), strict=True))
-        # the surfaces' pixels are dealt out anew; elsewhere the cut's labels stand
-        dealt = np.isin(pieces, surfaces)
-        labels[dealt] = 0
-        born = []
-        for r in surfaces.tolist():
-            surface = pieces == r
-            if r in owner:
-                labels[surface] = self._tracks[owner[r]].id
-            else:
-                # it moved with the track that held most of it
-                carrier = self._tracks[int(np.argmax(held[:, r]))].filter.velocity
-                pts = frame.xyz[surface]
-                shape = shape_of(pts, SHAPE_FLOOR_M, self.belt)
-                labels[surface] = self._start(pts, shape, carrier)
-                born.append(int(labels[surface][0]))
-        for k in involved.tolist():
-            t = self._tracks[k]
-            t.split_frames = 0
-            pts = frame.xyz[labels == t.id]
-            if len(pts) < p.min_pixels:
-                continue
-            t.restart(pts, self.belt)
-        return born
-
-    def _continuing(
-        self,
-        frame: Frame,
-        mask: B,
-        pieces: npt.NDArray[np.int32],
-        near: npt.NDArray[np.int32],
-        piece_boxes: list[tuple[slice, slice] | None],
-    ) -> npt.NDArray[np.int32]:
-        """Which pieces beside a track's `mask` are more of the same object (pieces smaller
-        than MIN_PIECE are noise): for rigid targets, those that go on from the mask's
-        surface without a 3D step (`joined_m`); for targets that bend, all (a limb).
-        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
-        keep = []
-        for r in near.tolist():
-            box = piece_boxes[r - 1]
-            assert box is not None
-            if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
-                continue
-            if self.params.rigid:
-                share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
-                if share < 0.5:
-                    continue
-            keep.append(r)
-        return np.array(keep, np.int32)
-
-    def _detect(
-        self,
-        frame: Frame,
-        pieces: npt.NDArray[np.int32],
-        labels: npt.NDArray[np.uint16],
-        noise: F64,
-    ) -> list[int]:
-        """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
-        row (within `gate_m`), a track. A piece most of which a track could claim is a
-        fringe of that track, not a new object."""
-        p = self.params
-        sizes = np.bincount(pieces.ravel())
-        claim = (p.background_cap - p.object_cost) / p.beta
-        found = []
-        for r in np.nonzero(sizes >= p.min_pixels)[0]:
-            if r == 0:
-                continue
-            piece = pieces == r
-            if not _solid(piece, p.min_pixels):
-                continue
-            pts = frame.xyz[piece]
-            centroid = pts.mean(axis=0)
-            if (
-                self._tracks
-                and np.median(self.cut.distances(self._tracks, pts, noise[piece]).min(axis=0))
-                < claim
-            ):
-                continue
-            found.append((centroid, pts, piece))
-        born = []
-        next_candidates = []
-        for centroid, pts, piece in found:
-            match = None
-            for c in self._candidates:
-                if np.linalg.norm(c.centroid - centroid) < p.gate_m:
-                    match = c
-                    break
-            if match is None:
-                next_candidates.append(_Candidate(centroid))
-                continue
-            self._candidates.remove(match)
-            match.seen += 1
-            match.centroid = centroid
-            if match.seen >= p.confirm_frames:
-                born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, self.belt)))
-                t = self._tracks[-1]
-                labels[piece] = t.id
-                t.usual_pixels = float(len(pts))
-                t.last = t.report(pts, _box_of(piece))
-            else:
-                next_candidates.append(match)
-        self._candidates = next_candidates
-        return born
-
-
-def _solid(piece: B, min_pixels: int) -> bool:
-    """Whether a piece has a body: `min_pixels` / 2 pixels or more whose 3×3 neighbourhood is
-    all in it, or it is coming into view. A sliver along a depth edge (mixed pixels
-    flickering in front of the scenery, a rail's rim) has none; the narrowest object has."""
-    box = _box_of(piece)
-    if _on_border(box, piece.shape):
-        return True  # coming into view: a sliver of it first
-    core = ndimage.binary_erosion(piece[box], EIGHT)
-    return int(np.count_nonzero(core)) * 2 >= min_pixels
 
 
 def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
@@ -522,48 +152,3 @@ def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
     rng = np.where(finite, frame.range, 0.0)
     xyz = np.where(finite[..., None], frame.xyz, 0.0)
     return dataclasses.replace(frame, range=rng, xyz=xyz, valid=frame.valid & finite)
-
-
-def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
-    """(v, u) of the valid pixel whose 3D point is nearest `point`."""
-    dist = np.linalg.norm(frame.xyz - point, axis=-1)
-    dist[~frame.valid] = np.inf
-    v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
-    return int(v), int(u)
-
-
-def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float) -> float:
-    """Of the pixel pairs where `a` meets `b` side by side (`b` within `box`), the share
-    whose 3D points are within `step_m` of each other (0 where they do not meet)."""
-    h, w = a.shape
-    rows = slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h))
-    cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
-    pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
-    meet = joined = 0
-    for k in (0, 1):  # right, down
-        one, other = pair_slices(pa.shape, k)
-        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
-        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
-        meet += gap.size
-        joined += int(np.count_nonzero(gap <= step_m))
-    return joined / meet if meet else 0.0
-
-
-def _box_of(mask: B) -> tuple[slice, slice]:
-    """The bounding slices (rows, columns) of a mask that is not empty."""
-    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
-def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
-    """Whether the largest of these pieces meets another of them within the track's own
-    `mask` (across the seam a 3D step leaves, or across a side face between them that noise
-    breaks into specks): two objects side by side, not one seen either side of an occluder
-    (which parts the mask)."""
-    sizes = np.bincount(pieces.ravel())
-    first = surfaces[np.argmax(sizes[surfaces])]
-    parts, _ = ndimage.label(mask, EIGHT)
-    home = np.bincount(parts[pieces == first]).argmax()
-    if home == 0:
-        return False
-    return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())
