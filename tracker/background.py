@@ -14,18 +14,15 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import EIGHT
-
-B = npt.NDArray[np.bool_]
 
 NOISE_SHARE = 0.7
 """Share of the noise its amplitude implies that a pixel's learned noise is at least: three

@@ -8,9 +8,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64, B
+from tofcut._types import F64, I32, U16, B
 from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, U16_2D, kernel
 
 
@@ -21,8 +20,8 @@ from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, U16_2D, kernel
     )
 )  # fmt: skip
 def follow_scene(
-    model: F64, sigma: F64, known: B, farther: npt.NDArray[np.int32], farther_min: F64,
-    unknown_seen: npt.NDArray[np.int32], unknown_reads: F64, seen: F64, valid: B, usable: B,
+    model: F64, sigma: F64, known: B, farther: I32, farther_min: F64,
+    unknown_seen: I32, unknown_reads: F64, seen: F64, valid: B, usable: B,
     hold: B, noise: F64, noise_factor: float, rate: float, min_sigma: float,
     reveal_frames: int, blend_sigmas: float, variance_share: float,
 ) -> None:  # fmt: skip
@@ -81,7 +80,7 @@ def follow_scene(
 
 @kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, U16_2D, 1.0, 1.0))
 def standing_out(
-    model: F64, sigma: F64, known: B, seen: F64, valid: B, labels: npt.NDArray[np.uint16],
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, labels: U16,
     noise_factor: float, min_height: float,
 ) -> B:  # fmt: skip
     """`BackgroundModel.standing_out` where `labels` is 0 (what no track took)."""

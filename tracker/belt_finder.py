@@ -29,10 +29,9 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 
-from tofcut._types import F64
+from tofcut._types import F32, F64, I64, B
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
 from tofcut.tracker.belt_sweep import (
@@ -46,10 +45,6 @@ from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.stats import robust_sigma
-
-F32 = npt.NDArray[np.float32]
-B = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
 
 Travel = Literal["looking", "found", "none", "unsure"]
 """Whether the belt's direction of travel is known: still looking; found; none (nothing moved

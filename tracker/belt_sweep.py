@@ -20,14 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F32, F64, B
 from tofcut.tracker import belt_sweep_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
-
-F32 = npt.NDArray[np.float32]
-B = npt.NDArray[np.bool_]
 
 INVALID = -1e3
 """Height given to unusable pixels before the median (far below any layer)."""

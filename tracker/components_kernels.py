@@ -7,14 +7,13 @@ union-find (`tofcut.tracker.paper.contraction`).
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import I64, B
+from tofcut._types import I32, I64, B
 from tofcut.tracker.compiled import B_2D, helper, kernel
 
 
 @helper
-def root(parent: npt.NDArray[np.int32] | I64, a: int) -> int:
+def root(parent: I32 | I64, a: int) -> int:
     """The root of `a` in a union-find forest, halving the path on the way."""
     while parent[a] != a:
         parent[a] = parent[parent[a]]
@@ -23,7 +22,7 @@ def root(parent: npt.NDArray[np.int32] | I64, a: int) -> int:
 
 
 @helper
-def number_sets(parent: npt.NDArray[np.int32] | I64, first: int, base: int) -> I64:
+def number_sets(parent: I32 | I64, first: int, base: int) -> I64:
     """Each element from `first` on numbered by its set, from `base` up in the order of each
     set's first element (every set's root is its smallest element)."""
     out = np.zeros(parent.size, np.int64)
@@ -39,7 +38,7 @@ def number_sets(parent: npt.NDArray[np.int32] | I64, first: int, base: int) -> I
 
 
 @kernel((B_2D,))
-def label_pieces(body: B) -> npt.NDArray[np.int32]:
+def label_pieces(body: B) -> I32:
     """`scipy.ndimage.label(body)[0]`: the 4-connected pieces of `body`, numbered from 1 in
     the order of each one's first pixel in row-major order (0 elsewhere)."""
     h, w = body.shape

@@ -5,15 +5,14 @@ box and points, their mean and extent, and how many pixels of each piece each tr
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64, I64
+from tofcut._types import F64, I32, I64, U16
 from tofcut.tracker.compiled import F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
 
 
 @kernel((U16_2D, F64_3D, I64_1D))
 def label_points(
-    labels: npt.NDArray[np.uint16], xyz: F64, ids: I64
+    labels: U16, xyz: F64, ids: I64
 ) -> tuple[I64, I64, F64]:  # fmt: skip
     """Each id's pixels in `labels`: (ids, 4) their box (first row, row past the last, first
     column, column past the last, as `ndimage.find_objects`; 0s where none), where each
@@ -76,7 +75,7 @@ def point_stats(points: F64) -> tuple[F64, F64, F64]:
 
 @kernel((U16_2D, I32_2D, I64_1D, 1, 1))
 def held_pieces(
-    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], row: I64, rows: int,
+    labels: U16, pieces: I32, row: I64, rows: int,
     n_pieces: int,
 ) -> I64:  # fmt: skip
     """(rows, n_pieces) how many pixels of each piece each label holds, by the label's row

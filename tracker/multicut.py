@@ -13,13 +13,10 @@ from dataclasses import dataclass
 
 import maxflow
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I64
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.multicut_kernels import cheapest_where, expansion_terms, moving_graph, settled
-
-I64 = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True, eq=False)

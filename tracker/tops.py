@@ -12,16 +12,12 @@ objects of one height pressed flush together: they stay one.
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 
-from tofcut._types import F64
+from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
 from tofcut.tracker.neighbours import OFFSETS, pair_slices
-
-B = npt.NDArray[np.bool_]
-I32 = npt.NDArray[np.int32]
 
 BASELINE = 4
 """Pixels between the two points whose height and spacing give the slope: over one pixel the
@@ -110,7 +106,7 @@ def split_by_tops(
 
 
 def one_object(
-    labels: npt.NDArray[np.uint16], xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
+    labels: U16, xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
 ) -> list[tuple[int, int]]:
     """Pairs of labels (smaller first) whose masks meet along a seam where most neighbours
     across it are within `joined_m` in 3D (one surface going on, no step) and which do not
@@ -160,9 +156,7 @@ def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
     return float(np.median(belt.height(xyz[top])))
 
 
-def _convex(
-    labels: npt.NDArray[np.uint16], xyz: F64, seam: list[tuple[int, int, int, int]]
-) -> bool:
+def _convex(labels: U16, xyz: F64, seam: list[tuple[int, int, int, int]]) -> bool:
     """Whether two masks meet at a convex edge along `seam` (pairs of neighbouring pixels,
     one in each): the convexity criterion of locally convex connected patches (Stein et al.,
     in PCL), (n₁ − n₂)·(c₁ − c₂) ≥ 0 for the normals and centroids of each side's surface

@@ -7,9 +7,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64, I64, B
+from tofcut._types import F64, I32, I64, B
 from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
 
 
@@ -63,7 +62,7 @@ def steep_pixels(
 
 @kernel((I32_2D, 1, I32_2D, F64_3D, F64_2D, F64_1D, F64_1D))
 def top_stats(
-    tops: npt.NDArray[np.int32], n: int, pieces: npt.NDArray[np.int32], xyz: F64,
+    tops: I32, n: int, pieces: I32, xyz: F64,
     noise: F64, origin: F64, normal: F64,
 ) -> tuple[I64, F64, F64, I64]:  # fmt: skip
     """Per top 1..n (index 0 unused): its pixels, mean height along `normal` above `origin`,
