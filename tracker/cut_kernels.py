@@ -271,7 +271,7 @@ def background_cost(
     model: F64, sigma: F64, known: B, seen: F64, valid: B, deadband: float, cap: float,
     unknown: float,
 ) -> F64:  # fmt: skip
-    """Each pixel's cost for the background (see `Tracker._background_cost`): half the
+    """Each pixel's cost for the background (see `JointCut.background_cost`): half the
     square of how far it stands in front of the scenery, in noise sigmas, less the
     deadband, at most `cap`; `unknown` where the scenery is not known."""
     h, w = model.shape
