@@ -108,7 +108,8 @@ class ReferenceBackground(BackgroundModel):
 
 @_replacing(JointCut)
 class ReferenceCut(JointCut):
-    """The joint cut in plain numpy over the whole frame."""
+    """The joint cut in plain numpy over the whole frame. Its steps repeat `JointCut`'s on
+    purpose (the same signatures, the same order), in the numpy the tests hold it to."""
 
     def labels(
         self, frame: Frame, noise: F64, tracks: list[LiveTrack], background: BackgroundModel
@@ -190,7 +191,8 @@ class ReferenceCut(JointCut):
 
 @_replacing(Pieces)
 class ReferencePieces(Pieces):
-    """Masks cut into pieces in plain numpy over the whole frame."""
+    """Masks cut into pieces in plain numpy over the whole frame, repeating `Pieces`' steps
+    on purpose (the same signatures, the same order)."""
 
     def loose(
         self,
