@@ -7,7 +7,8 @@ What a Python user meets first (the rest lives in `tofcut.driver`, `tofcut.track
   `usb:SERIAL`, `emulator[:SCENE]`, `run.tofcap`), each with the same `frames()`;
 - `tofcut.Tracker`, whose one call is `update(frame) -> TrackedFrame`;
 - the values that cross layers (`Frame`, `Track`, `TrackedFrame`) and the errors
-  (`TofcutError` and its kinds).
+  (`TofcutError` and its kinds);
+- `Frame.from_arrays` and `Intrinsics`: a frame from any depth camera's arrays.
 
 Names are imported when first used, so `import tofcut` stays light.
 """
@@ -23,11 +24,13 @@ if TYPE_CHECKING:
     from tofcut.driver.capture import CaptureReader
     from tofcut.driver.errors import TofcutError
     from tofcut.driver.frames import Frame
+    from tofcut.driver.intrinsics import Intrinsics
     from tofcut.tracker.tracker import Tracker, TrackerParams
     from tofcut.tracker.tracks import Track, TrackedFrame
 
 __all__ = [
     "Frame",
+    "Intrinsics",
     "TofcutError",
     "Track",
     "TrackedFrame",
@@ -38,6 +41,7 @@ __all__ = [
 
 _LAZY = {
     "Frame": "tofcut.driver.frames",
+    "Intrinsics": "tofcut.driver.intrinsics",
     "TofcutError": "tofcut.driver.errors",
     "Tracker": "tofcut.tracker.tracker",
     "TrackerParams": "tofcut.tracker.tracker",

@@ -21,12 +21,14 @@ from tofcut.driver.errors import (
     DeviceNotFound,
     DeviceTimeout,
     Disconnected,
+    FrameInputError,
     ProtocolError,
     RequestRejected,
     TofcutError,
 )
 from tofcut.driver.events import DeviceEvent, EventKind
 from tofcut.driver.frames import Frame, RawFrame
+from tofcut.driver.intrinsics import Intrinsics
 from tofcut.driver.protocol import DeviceInfo, FrameHeader, Register
 from tofcut.driver.recovery import ReconnectPolicy
 from tofcut.driver.stream import FrameParser, StreamStats
@@ -50,7 +52,9 @@ __all__ = [
     "EventKind",
     "Frame",
     "FrameHeader",
+    "FrameInputError",
     "FrameParser",
+    "Intrinsics",
     "Optics",
     "ProtocolError",
     "RawFrame",

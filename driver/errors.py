@@ -56,5 +56,9 @@ class ConfigError(TofcutError, ValueError):
     """A configuration value the camera cannot take."""
 
 
+class FrameInputError(TofcutError, ValueError):
+    """Arrays, intrinsics or times that cannot make a `Frame` (`Frame.from_arrays`)."""
+
+
 class LinkError(DeviceError):
     """The conveyor controller's link (a serial port or a Modbus TCP gateway) cannot be opened."""

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
 from tofcut.driver.protocol import FrameHeader
+
+if TYPE_CHECKING:
+    from tofcut.driver.intrinsics import Intrinsics
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,3 +65,42 @@ class Frame:
     def shape(self) -> tuple[int, int]:
         """(H, W)."""
         return (self.header.height, self.header.width)
+
+    @classmethod
+    def from_arrays(
+        cls,
+        *,
+        time_s: float,
+        range_m: npt.ArrayLike | None = None,
+        depth_m: npt.ArrayLike | None = None,
+        xyz: npt.ArrayLike | None = None,
+        intrinsics: Intrinsics | None = None,
+        amplitude: npt.ArrayLike | None = None,
+        intensity: npt.ArrayLike | None = None,
+        valid: npt.ArrayLike | None = None,
+        sequence: int = 0,
+        host_time_ns: int | None = None,
+    ) -> Frame:
+        """A frame from any depth camera's arrays, for the tracker (docs/other-cameras.md);
+        a size or value it cannot use is a `FrameInputError`, in one line.
+
+        The geometry: `range_m` (H, W: metres along each pixel's ray), `depth_m` (H, W: z,
+        as depth images hold it) or `xyz` (H, W, 3: camera-frame points, x right, y down,
+        z forward, metres), or `range_m` with `xyz` (as `tofcut convert`'s npz holds them;
+        they must agree). `intrinsics` gives the size and, for a range or depth, the rays
+        (optional with `xyz`). `amplitude` (H, W, ≥ 0) is the signal's strength A and
+        `intensity` the mean brightness B (default: even, the amplitude's median): the
+        tracker takes a pixel's range noise as ∝ √B / A, so without an amplitude every
+        pixel is taken as equally noisy. `valid` (H, W, bool; default: where the range or z
+        is finite and positive) marks the pixels to use. `time_s` is the exposure's time on
+        the source's clock (seconds, ≥ 0: the tracker's velocities come from it),
+        `sequence` its frame counter, `host_time_ns` when it reached the host (default:
+        now). There is no phase: `phase` is zeros.
+        """
+        from tofcut.driver.frame_input import frame_from_arrays
+
+        return frame_from_arrays(
+            time_s=time_s, range_m=range_m, depth_m=depth_m, xyz=xyz, intrinsics=intrinsics,
+            amplitude=amplitude, intensity=intensity, valid=valid, sequence=sequence,
+            host_time_ns=host_time_ns,
+        )  # fmt: skip

@@ -159,6 +159,13 @@ class PtyModbusServer:
         with self._lock:
             return len(self._faults)
 
+    def clear_faults(self) -> int:
+        """Drop the injected faults no request has used yet; returns how many."""
+        with self._lock:
+            n = len(self._faults)
+            self._faults.clear()
+            return n
+
     # --- the server's thread --------------------------------------------------------------
 
     def _run(self) -> None:

@@ -19,8 +19,6 @@ from tofcut.driver.belt import BeltGeometry, BeltReading, KnownBelt
 from tofcut.driver.conveyor.reject_rule import RejectRule
 from tofcut.driver.conveyor.rejects import RejectScheduler
 from tofcut.sim.catalog import open_scene
-from tofcut.sim.conveyor import EmulatedConveyor
-from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.tools.cli import main
 from tofcut.tools.commands import tracking
 from tofcut.tools.pipeline.belt_source import (
@@ -32,7 +30,6 @@ from tofcut.tools.pipeline.belt_source import (
 )
 from tofcut.tools.pipeline.conveyor_line import add_conveyor_options, open_conveyor
 from tofcut.tools.pipeline.run_belt import RunBelt
-from tofcut.tools.pipeline.sources import SourceSpec, open_source
 from tofcut.tracker.tracker import Tracker
 
 SCENE_BELT = open_scene("conveyor").belt
@@ -269,7 +266,7 @@ def test_a_belt_source_that_is_not_a_source_is_a_one_line_error(capture, tmp_pat
 
 @pytest.mark.parametrize("link", ["emulator", "port"])
 def test_live_rejects_start_without_a_map_when_the_scene_knows_the_belt(
-    tmp_path, capsys, monkeypatch, link
+    tmp_path, capsys, monkeypatch, link, tofcut_conveyor_factory
 ):
     lines = []
 
@@ -284,8 +281,8 @@ def test_live_rejects_start_without_a_map_when_the_scene_knows_the_belt(
     if link == "emulator":
         assert main([*argv, "--conveyor-emulator"]) == 0
     else:  # a controller of our own on a pty: the scene's belt still comes from the scene
-        with PtyModbusServer(EmulatedConveyor(0.25)) as server:
-            assert main([*argv, "--conveyor", server.port, "--parity", "N"]) == 0
+        port = tofcut_conveyor_factory(0.25).port
+        assert main([*argv, "--conveyor", port, "--parity", "N"]) == 0
     out = capsys.readouterr().out
     assert (
         "belt: from the scene's metadata (conveyor); speed 0.250 m/s; "
@@ -428,27 +425,24 @@ def test_a_target_pixel_off_the_image_is_a_one_line_error(capture, tmp_path, cap
     assert "target_pixel is not a pixel of the image" in err
 
 
-def test_a_belt_given_through_the_python_api_reaches_the_rejects_and_the_prior():
+def test_a_belt_given_through_the_python_api_reaches_the_rejects_and_the_prior(tofcut_camera):
     """The API's own source wins over the scene's: `resolve_run_belt(..., given=...)`."""
     parser = argparse.ArgumentParser()
     add_conveyor_options(parser)
     args = parser.parse_args(["--conveyor-emulator", "--reject", "height > 0.1",
                               "--diverter-distance", "1.0"])  # fmt: skip
     given = moved(SCENE_BELT, "given", turn_deg=1.0, speed=0.25)
-    opened = open_source(SourceSpec("emulator", "conveyor"), realtime=False)
-    try:
-        resolution = resolve_run_belt(args, opened, given=given)
-        assert resolution.belt is given
-        assert resolution.warnings == ()  # within a few degrees of the scene's
-        with open_conveyor(args, opened, resolution=resolution) as line:
-            assert line.rejects.belt is given.geometry
-            tracker = SimpleNamespace(belt=given.geometry)
-            run_belt = RunBelt(resolution, tracker, line=line)
-            reading = line.client.wait_for(lambda r: True, 5.0)
-            now = SimpleNamespace(sequence=0, host_time_ns=reading.time_ns)
-            line.exposures = SimpleNamespace(host_time_ns=lambda f: f.host_time_ns)
-            prior = run_belt.at_frame(now)
-            np.testing.assert_allclose(prior.mean, 0.25 * given.geometry.direction, atol=1e-12)
-            assert run_belt.describe().startswith("belt: given through the Python API")
-    finally:
-        opened.device.close()
+    opened = tofcut_camera.opened  # the emulated conveyor, fast (the plugin's fixture)
+    resolution = resolve_run_belt(args, opened, given=given)
+    assert resolution.belt is given
+    assert resolution.warnings == ()  # within a few degrees of the scene's
+    with open_conveyor(args, opened, resolution=resolution) as line:
+        assert line.rejects.belt is given.geometry
+        tracker = SimpleNamespace(belt=given.geometry)
+        run_belt = RunBelt(resolution, tracker, line=line)
+        reading = line.client.wait_for(lambda r: True, 5.0)
+        now = SimpleNamespace(sequence=0, host_time_ns=reading.time_ns)
+        line.exposures = SimpleNamespace(host_time_ns=lambda f: f.host_time_ns)
+        prior = run_belt.at_frame(now)
+        np.testing.assert_allclose(prior.mean, 0.25 * given.geometry.direction, atol=1e-12)
+        assert run_belt.describe().startswith("belt: given through the Python API")

@@ -23,7 +23,6 @@ from tofcut.tools.pipeline.conveyor_line import (
     log_reject,
     open_conveyor,
 )
-from tofcut.tools.pipeline.sources import SourceSpec, open_source
 from tofcut.tracker.tracks import Track
 
 WAIT_S = 5.0
@@ -63,30 +62,25 @@ def test_no_conveyor_unless_asked():
         open_conveyor(parse("--conveyor", "/dev/null", "--conveyor-emulator"))
 
 
-def test_the_emulated_line_follows_the_emulated_scene():
-    opened = open_source(SourceSpec("emulator", "conveyor"))
+@pytest.mark.tofcut_camera("conveyor", realtime=True)
+def test_the_emulated_line_follows_the_emulated_scene(tofcut_camera):
+    opened = tofcut_camera.opened
     camera = opened.emulator
     args = parse("--conveyor-emulator", "--reject", "height > 0.2", "--diverter-distance", "1.0")
-    try:
-        line = open_conveyor(args, opened)
-        with line:
-            reading = line.client.wait_for(lambda r: True, WAIT_S)
-            assert reading.speed_mps == pytest.approx(0.25)  # the scene's belt speed
-            # The controller's belt runs on the camera's clock: travel = speed × device time.
-            assert line.emulated.distance_m() == pytest.approx(
-                0.25 * camera.now_us() * 1e-6, abs=0.01
-            )
-            with opened.device as cam:
-                (frame,) = cam.frames(count=1)
-            assert line.frame_time_ns(frame) <= frame.host_time_ns  # taken before it arrived
-            prior = line.velocity_prior(frame)
-            np.testing.assert_allclose(prior.mean, [0.25, 0.0, 0.0], atol=1e-12)
-            assert line.rejects.rule.text == "height > 0.2"
-            assert line.rejects.diverter_m == 1.0
-            assert "conveyor " in line.summary()
-            assert "rejects: 0 fired" in line.summary()
-    finally:
-        opened.device.close()
+    with open_conveyor(args, opened) as line:
+        reading = line.client.wait_for(lambda r: True, WAIT_S)
+        assert reading.speed_mps == pytest.approx(0.25)  # the scene's belt speed
+        # The controller's belt runs on the camera's clock: travel = speed × device time.
+        assert line.emulated.distance_m() == pytest.approx(0.25 * camera.now_us() * 1e-6, abs=0.01)
+        with opened.device as cam:
+            (frame,) = cam.frames(count=1)
+        assert line.frame_time_ns(frame) <= frame.host_time_ns  # taken before it arrived
+        prior = line.velocity_prior(frame)
+        np.testing.assert_allclose(prior.mean, [0.25, 0.0, 0.0], atol=1e-12)
+        assert line.rejects.rule.text == "height > 0.2"
+        assert line.rejects.diverter_m == 1.0
+        assert "conveyor " in line.summary()
+        assert "rejects: 0 fired" in line.summary()
 
 
 def test_rejects_and_readings_show_in_rerun(tmp_path):

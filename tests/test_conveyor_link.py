@@ -9,10 +9,8 @@ import random
 import socket
 import threading
 import time
-from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -28,12 +26,12 @@ from tofcut.driver.conveyor.link import COMMANDS_KEPT, ConveyorClient
 from tofcut.driver.errors import LinkError
 from tofcut.sim.conveyor import EmulatedConveyor
 from tofcut.sim.modbus_rtu import crc16
-from tofcut.sim.modbus_server import Fault, PtyModbusServer
+from tofcut.testing import ConveyorRig
 from tofcut.tracker.belt_prior import belt_velocity_prior
 
 WAIT_S = 5.0
 """Upper bound of every wait; each returns as soon as its condition holds."""
-FAST_LINK = LinkSettings(
+FAST_SETTINGS = dict(
     parity="N",  # a pseudo-terminal refuses parity settings
     timeout_s=0.1,
     retries=2,
@@ -41,29 +39,33 @@ FAST_LINK = LinkSettings(
     heartbeat_s=0.0,  # off unless a test wants it, so injected faults hit polls only
     reopen_s=0.02,
 )
+FAST_LINK = LinkSettings(**FAST_SETTINGS)
 DIRECTION = np.array([0.8, 0.0, 0.6])
 
 
-@contextmanager
-def pty_line(
-    tmp_path: Path,
-    *,
-    speed_mps: float = 0.25,
-    start_count: int = 0,
-    registers: RegisterMap | None = None,
-    **link: float,
-) -> Iterator[tuple[EmulatedConveyor, PtyModbusServer, ConveyorClient, list[float]]]:
-    """The emulated controller on a pty (opened through a symlink, like /dev/serial/by-id)
-    and the project's client polling it. The belt's clock is `now[0]`: it moves only when
-    the test moves it, so every count is known exactly."""
-    now = [0.0]
-    conveyor = EmulatedConveyor(speed_mps, registers, clock=lambda: now[0], start_count=start_count)
-    server = PtyModbusServer(conveyor, link=tmp_path / "ttyCONV0").start()
-    try:
-        with ConveyorClient(replace(FAST_LINK, port=server.port, **link), registers) as client:
-            yield conveyor, server, client, now
-    finally:
-        server.close()
+@pytest.fixture
+def pty_line(tofcut_conveyor_factory, tmp_path):
+    """Start the emulated controller on a pty (opened through a symlink, like
+    /dev/serial/by-id: `tofcut_conveyor_factory`, the plugin's) and the project's client
+    polling it. The belt's clock is `now[0]`: it moves only when the test moves it, so
+    every count is known exactly."""
+
+    def start(
+        *,
+        speed_mps: float = 0.25,
+        start_count: int = 0,
+        registers: RegisterMap | None = None,
+        **link: float,
+    ) -> tuple[EmulatedConveyor, ConveyorRig, ConveyorClient, list[float]]:
+        now = [0.0]
+        line = tofcut_conveyor_factory(
+            speed_mps, clock=lambda: now[0], start_count=start_count, registers=registers,
+            link=tmp_path / "ttyCONV0",
+        )  # fmt: skip
+        client = line.connect(registers, **{**FAST_SETTINGS, **link})
+        return line.controller, line, client, now
+
+    return start
 
 
 def fresh(client: ConveyorClient, conveyor: EmulatedConveyor):
@@ -83,112 +85,112 @@ def fresh(client: ConveyorClient, conveyor: EmulatedConveyor):
     ],
     ids=["default-map", "scattered-low-first"],
 )
-def test_encoder_speed_and_status_read_correctly_across_the_wrap(tmp_path, registers):
+def test_encoder_speed_and_status_read_correctly_across_the_wrap(pty_line, registers):
     start = 2**32 - 1000  # the encoder register wraps 1000 counts into the run
-    with pty_line(tmp_path, start_count=start, registers=registers) as (conveyor, _, client, now):
-        first = fresh(client, conveyor)
-        assert first.count == start
-        assert first.distance_m == 0.0
-        assert first.speed_mps == pytest.approx(0.25)
-        assert first.running
-        assert not first.fault
-        now[0] = 2.0  # 0.5 m at 0.25 m/s: 5000 counts at 10000 per metre
-        later = fresh(client, conveyor)
-        assert later.count == (start + 5000) % 2**32 == 4000
-        assert later.distance_m == pytest.approx(0.5, abs=1e-12)
-        conveyor.set_fault(True)
-        assert client.wait_for(lambda r: r.fault, WAIT_S) is not None
-        assert client.stats.failed_polls == 0
+    conveyor, _, client, now = pty_line(start_count=start, registers=registers)
+    first = fresh(client, conveyor)
+    assert first.count == start
+    assert first.distance_m == 0.0
+    assert first.speed_mps == pytest.approx(0.25)
+    assert first.running
+    assert not first.fault
+    now[0] = 2.0  # 0.5 m at 0.25 m/s: 5000 counts at 10000 per metre
+    later = fresh(client, conveyor)
+    assert later.count == (start + 5000) % 2**32 == 4000
+    assert later.distance_m == pytest.approx(0.5, abs=1e-12)
+    conveyor.set_fault(True)
+    assert client.wait_for(lambda r: r.fault, WAIT_S) is not None
+    assert client.stats.failed_polls == 0
 
 
-def test_the_velocity_prior_follows_a_speed_change(tmp_path):
-    with pty_line(tmp_path) as (conveyor, _, client, now):
-        slow = fresh(client, conveyor)
-        prior = belt_velocity_prior(slow, DIRECTION)
-        np.testing.assert_allclose(prior.mean, 0.25 * DIRECTION)
-        conveyor.set_speed(0.6)
-        fast = client.wait_for(lambda r: r.speed_mps == pytest.approx(0.6), WAIT_S)
-        assert fast is not None
-        prior = belt_velocity_prior(client.reading_at(fast.time_ns), DIRECTION)
-        assert prior.informed
-        np.testing.assert_allclose(prior.mean, 0.6 * DIRECTION)
-        # Along the belt the prior is tight, across it looser.
-        assert DIRECTION @ prior.cov @ DIRECTION < np.array([0.0, 1.0, 0.0]) @ prior.cov[:, 1]
-        # The history still knows the slow part; the encoder agrees with the new speed.
-        assert client.reading_at(slow.time_ns).speed_mps == pytest.approx(0.25)
-        now[0] += 0.5
-        assert fresh(client, conveyor).distance_m - fast.distance_m == pytest.approx(0.3)
+def test_the_velocity_prior_follows_a_speed_change(pty_line):
+    conveyor, _, client, now = pty_line()
+    slow = fresh(client, conveyor)
+    prior = belt_velocity_prior(slow, DIRECTION)
+    np.testing.assert_allclose(prior.mean, 0.25 * DIRECTION)
+    conveyor.set_speed(0.6)
+    fast = client.wait_for(lambda r: r.speed_mps == pytest.approx(0.6), WAIT_S)
+    assert fast is not None
+    prior = belt_velocity_prior(client.reading_at(fast.time_ns), DIRECTION)
+    assert prior.informed
+    np.testing.assert_allclose(prior.mean, 0.6 * DIRECTION)
+    # Along the belt the prior is tight, across it looser.
+    assert DIRECTION @ prior.cov @ DIRECTION < np.array([0.0, 1.0, 0.0]) @ prior.cov[:, 1]
+    # The history still knows the slow part; the encoder agrees with the new speed.
+    assert client.reading_at(slow.time_ns).speed_mps == pytest.approx(0.25)
+    now[0] += 0.5
+    assert fresh(client, conveyor).distance_m - fast.distance_m == pytest.approx(0.3)
 
 
-def test_a_stopped_belt_is_stopped_not_lost(tmp_path):
-    with pty_line(tmp_path) as (conveyor, _, client, now):
-        fresh(client, conveyor)
-        now[0] = 1.0
-        conveyor.stop()
-        stopped = client.wait_for(lambda r: not r.running, WAIT_S)
-        assert stopped is not None
-        assert stopped.speed_mps == 0.0
-        readings = [stopped]
-        for _ in range(3):  # time passes, readings keep coming, the belt stays put
-            now[0] += 1.0
-            last = readings[-1].time_ns
-            readings.append(client.wait_for(lambda r, last=last: r.time_ns > last, WAIT_S))
-        assert {r.distance_m for r in readings} == {0.25}
-        stats = client.stats
-        assert stats.link_up
-        assert stats.failed_polls == 0
-        assert stats.timeouts == 0
-        prior = belt_velocity_prior(client.reading_at(time.time_ns()), DIRECTION)
-        assert prior.informed
-        np.testing.assert_array_equal(prior.mean, np.zeros(3))
-        conveyor.start()
+def test_a_stopped_belt_is_stopped_not_lost(pty_line):
+    conveyor, _, client, now = pty_line()
+    fresh(client, conveyor)
+    now[0] = 1.0
+    conveyor.stop()
+    stopped = client.wait_for(lambda r: not r.running, WAIT_S)
+    assert stopped is not None
+    assert stopped.speed_mps == 0.0
+    readings = [stopped]
+    for _ in range(3):  # time passes, readings keep coming, the belt stays put
         now[0] += 1.0
-        assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
+        last = readings[-1].time_ns
+        readings.append(client.wait_for(lambda r, last=last: r.time_ns > last, WAIT_S))
+    assert {r.distance_m for r in readings} == {0.25}
+    stats = client.stats
+    assert stats.link_up
+    assert stats.failed_polls == 0
+    assert stats.timeouts == 0
+    prior = belt_velocity_prior(client.reading_at(time.time_ns()), DIRECTION)
+    assert prior.informed
+    np.testing.assert_array_equal(prior.mean, np.zeros(3))
+    conveyor.start()
+    now[0] += 1.0
+    assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
 
 
-def test_the_heartbeat_counts_up(tmp_path):
-    with pty_line(tmp_path, heartbeat_s=0.01) as (conveyor, _, client, _now):
-        beats = conveyor.wait_heartbeats(3, WAIT_S)
-        assert beats[:3] == [1, 2, 3]
-        assert client.wait_stats(lambda s: s.heartbeats >= 3, WAIT_S).heartbeats >= 3
+def test_the_heartbeat_counts_up(pty_line):
+    conveyor, _, client, _now = pty_line(heartbeat_s=0.01)
+    beats = conveyor.wait_heartbeats(3, WAIT_S)
+    assert beats[:3] == [1, 2, 3]
+    assert client.wait_stats(lambda s: s.heartbeats >= 3, WAIT_S).heartbeats >= 3
 
 
-def test_crc_errors_and_exception_replies_are_retried_within_the_bound_and_counted(tmp_path):
-    with pty_line(tmp_path) as (conveyor, server, client, now):
-        fresh(client, conveyor)
-        server.inject(Fault.CRC, 2)  # two bad replies: the third attempt gets through
+def test_crc_errors_and_exception_replies_are_retried_within_the_bound_and_counted(pty_line):
+    conveyor, line, client, now = pty_line()
+    fresh(client, conveyor)
+    with line.spoiled("crc", 2):  # two bad replies: the third attempt gets through
         now[0] = 1.0
         assert fresh(client, conveyor).distance_m == pytest.approx(0.25)
-        stats = client.stats
-        assert stats.bad_frames >= 2
-        assert stats.retries >= 2
-        assert stats.failed_polls == 0
-        server.inject(Fault.EXCEPTION, 3)  # one more than the retries: that poll fails
+    stats = client.stats
+    assert stats.bad_frames >= 2
+    assert stats.retries >= 2
+    assert stats.failed_polls == 0
+    with line.spoiled("exception", 3):  # one more than the retries: that poll fails
         stats = client.wait_stats(lambda s: s.exception_replies >= 3, WAIT_S)
-        assert stats.exception_replies >= 3
-        assert stats.failed_polls >= 1
-        now[0] = 2.0
-        assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
-        assert client.stats.link_up
+    assert stats.exception_replies >= 3
+    assert stats.failed_polls >= 1
+    now[0] = 2.0
+    assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
+    assert client.stats.link_up
 
 
-def test_garbage_on_the_line_is_survived(tmp_path):
-    with pty_line(tmp_path) as (conveyor, server, client, now):
-        fresh(client, conveyor)
-        server.inject(Fault.GARBAGE, 2)
+def test_garbage_on_the_line_is_survived(pty_line):
+    conveyor, line, client, now = pty_line()
+    fresh(client, conveyor)
+    with line.spoiled("garbage", 2):
         for _ in range(5):  # noise bursts between and into requests
-            server.noise(40)
+            line.noise(40)
         stats = client.wait_stats(lambda s: s.bad_frames >= 2, WAIT_S)
-        assert stats.bad_frames >= 2
-        now[0] = 4.0
-        assert fresh(client, conveyor).distance_m == pytest.approx(1.0)
-        assert client.stats.link_up
+    assert stats.bad_frames >= 2
+    now[0] = 4.0
+    assert fresh(client, conveyor).distance_m == pytest.approx(1.0)
+    assert client.stats.link_up
 
 
-def test_a_silent_controller_is_counted_and_never_blocks_the_caller(tmp_path):
-    with pty_line(tmp_path) as (conveyor, server, client, now):
-        before = fresh(client, conveyor)
-        server.silent = True
+def test_a_silent_controller_is_counted_and_never_blocks_the_caller(pty_line):
+    conveyor, line, client, now = pty_line()
+    before = fresh(client, conveyor)
+    with line.silent():
         stats = client.wait_stats(lambda s: s.timeouts >= 3, WAIT_S)
         assert stats.timeouts >= 3
         assert not stats.link_up
@@ -199,20 +201,19 @@ def test_a_silent_controller_is_counted_and_never_blocks_the_caller(tmp_path):
         stats = client.wait_stats(lambda s: s.diverter_late + s.diverter_failures >= 1, WAIT_S)
         assert stats.diverter_late + stats.diverter_failures == 1
         assert stats.diverter_writes == 0
-        server.silent = False
-        now[0] = 2.0
-        assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
-        assert client.stats.link_up
-        assert conveyor.diverter_commands == []  # a late push would hit the wrong object
+    now[0] = 2.0
+    assert fresh(client, conveyor).distance_m == pytest.approx(0.5)
+    assert client.stats.link_up
+    assert conveyor.diverter_commands == []  # a late push would hit the wrong object
 
 
-def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(tmp_path):
-    with pty_line(tmp_path, timeout_s=10.0, retries=10) as (conveyor, server, client, _now):
-        fresh(client, conveyor)
-        server.silent = True
-        asked = server.stats.requests
+def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(pty_line):
+    conveyor, line, client, _now = pty_line(timeout_s=10.0, retries=10)
+    fresh(client, conveyor)
+    with line.silent():
+        asked = line.server.stats.requests
         deadline = time.monotonic() + WAIT_S
-        while server.stats.requests == asked:  # a request is now waiting for its 10 s timeout
+        while line.server.stats.requests == asked:  # a request now waits for its 10 s timeout
             assert time.monotonic() < deadline
             time.sleep(0.001)
         closer = threading.Thread(target=client.close, kwargs={"deadline_s": 0.5})
@@ -227,44 +228,42 @@ def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(tmp_pat
 
 
 @pytest.mark.parametrize("heartbeat_s", [LINK_RANGES["heartbeat_s"][0], 1e-6])
-def test_a_fast_heartbeat_does_not_starve_the_polls(tmp_path, heartbeat_s):
+def test_a_fast_heartbeat_does_not_starve_the_polls(tofcut_conveyor, heartbeat_s):
     """The fastest heartbeat a map may ask for, and (past the check) one always due."""
-    conveyor = EmulatedConveyor(0.25)
-    link = replace(FAST_LINK, heartbeat_s=LINK_RANGES["heartbeat_s"][0])
+    link = tofcut_conveyor.link(**{**FAST_SETTINGS, "heartbeat_s": LINK_RANGES["heartbeat_s"][0]})
     object.__setattr__(link, "heartbeat_s", heartbeat_s)
-    with PtyModbusServer(conveyor, link=tmp_path / "ttyCONV0").start() as server:
-        object.__setattr__(link, "port", server.port)
-        with ConveyorClient(link) as client:
-            stats = client.wait_stats(lambda s: s.readings >= 20 and s.heartbeats >= 20, WAIT_S)
+    with ConveyorClient(link) as client:
+        stats = client.wait_stats(lambda s: s.readings >= 20 and s.heartbeats >= 20, WAIT_S)
     assert stats.readings >= 20, stats
     assert stats.heartbeats >= 20, stats
 
 
-def test_diverter_commands_queued_behind_a_stuck_link_are_bounded(tmp_path):
-    with pty_line(tmp_path, timeout_s=10.0) as (conveyor, server, client, _now):
-        fresh(client, conveyor)
-        server.silent = True  # the link now waits up to 10 s for each reply
+def test_diverter_commands_queued_behind_a_stuck_link_are_bounded(pty_line):
+    conveyor, line, client, _now = pty_line(timeout_s=10.0)
+    fresh(client, conveyor)
+    with line.silent():  # the link now waits up to 10 s for each reply
         for tag in range(COMMANDS_KEPT + 100):
             client.divert(tag)
         with client._lock:
             assert len(client._commands) <= COMMANDS_KEPT
         assert client.stats.diverter_late >= 99  # the oldest, dropped; one may be in flight
+        client.close()  # the commands still queued go with it
     assert conveyor.diverter_commands == []
 
 
-def test_the_port_vanishes_and_comes_back(tmp_path):
-    with pty_line(tmp_path) as (conveyor, server, client, now):
-        fresh(client, conveyor)
-        server.vanish()  # the adapter is unplugged: the pty closes, the symlink goes
-        assert not os.path.exists(server.port)
+def test_the_port_vanishes_and_comes_back(pty_line):
+    conveyor, line, client, now = pty_line()
+    fresh(client, conveyor)
+    with line.unplugged():  # the adapter is pulled out: the pty closes, the symlink goes
+        assert not os.path.exists(line.port)
         stats = client.wait_stats(lambda s: s.disconnects >= 1, WAIT_S)
         assert stats.disconnects == 1
         assert not stats.link_up
-        server.reappear()  # plugged back in: a new pty behind the same path
-        assert client.wait_stats(lambda s: s.reopens >= 1, WAIT_S).reopens == 1
-        now[0] = 3.0
-        assert fresh(client, conveyor).distance_m == pytest.approx(0.75)
-        assert client.stats.link_up
+    # plugged back in: a new pty behind the same path
+    assert client.wait_stats(lambda s: s.reopens >= 1, WAIT_S).reopens == 1
+    now[0] = 3.0
+    assert fresh(client, conveyor).distance_m == pytest.approx(0.75)
+    assert client.stats.link_up
 
 
 def test_opening_a_missing_port_says_which(tmp_path):
@@ -282,38 +281,38 @@ def test_crc16_is_the_standard_modbus_crc():
     assert crc16(bytes.fromhex("01030000000A")).to_bytes(2, "little").hex() == "c5cd"
 
 
-def test_pymodbus_own_client_against_the_emulated_controller(tmp_path):
-    now = [2.0]
-    conveyor = EmulatedConveyor(0.25, clock=lambda: now[0], epoch=0.0, start_count=0x12345)
-    with PtyModbusServer(conveyor) as server:
-        client = ModbusSerialClient(
-            server.port, framer=FramerType.RTU, baudrate=19200, parity="N",
-            timeout=0.2, retries=0,
-        )  # fmt: skip
-        assert client.connect()
-        try:
-            count = 0x12345 + 5000
-            reply = client.read_holding_registers(0, count=4, device_id=1)
-            assert not reply.isError()
-            assert list(reply.registers) == [count >> 16, count & 0xFFFF, 250, 0b01]
-            assert not client.write_register(10, 7, device_id=1).isError()
-            (command,) = conveyor.diverter_commands
-            assert (command.value, command.count) == (7, count)
-            assert not client.write_registers(11, [42], device_id=1).isError()
-            assert conveyor.heartbeats == [42]
-            assert client.read_holding_registers(60, count=10, device_id=1).exception_code == 2
-            assert client.write_register(0, 1, device_id=1).exception_code == 2  # read-only
-            assert client.read_input_registers(0, count=1, device_id=1).exception_code == 1
-            with pytest.raises(ModbusIOException):  # another unit on the bus: no answer
-                client.read_holding_registers(0, count=1, device_id=2)
-            server.inject(Fault.CRC)
-            with pytest.raises(ModbusIOException):  # pymodbus also rejects the bad CRC
-                client.read_holding_registers(0, count=1, device_id=1)
-            server.inject(Fault.EXCEPTION)
+def test_pymodbus_own_client_against_the_emulated_controller(tofcut_conveyor_factory):
+    now = [0.0]
+    line = tofcut_conveyor_factory(0.25, clock=lambda: now[0], start_count=0x12345)
+    conveyor = line.controller
+    now[0] = 2.0
+    client = ModbusSerialClient(
+        line.port, framer=FramerType.RTU, baudrate=19200, parity="N",
+        timeout=0.2, retries=0,
+    )  # fmt: skip
+    assert client.connect()
+    try:
+        count = 0x12345 + 5000
+        reply = client.read_holding_registers(0, count=4, device_id=1)
+        assert not reply.isError()
+        assert list(reply.registers) == [count >> 16, count & 0xFFFF, 250, 0b01]
+        assert not client.write_register(10, 7, device_id=1).isError()
+        (command,) = conveyor.diverter_commands
+        assert (command.value, command.count) == (7, count)
+        assert not client.write_registers(11, [42], device_id=1).isError()
+        assert conveyor.heartbeats == [42]
+        assert client.read_holding_registers(60, count=10, device_id=1).exception_code == 2
+        assert client.write_register(0, 1, device_id=1).exception_code == 2  # read-only
+        assert client.read_input_registers(0, count=1, device_id=1).exception_code == 1
+        with pytest.raises(ModbusIOException):  # another unit on the bus: no answer
+            client.read_holding_registers(0, count=1, device_id=2)
+        with line.spoiled("crc"), pytest.raises(ModbusIOException):  # pymodbus rejects it too
+            client.read_holding_registers(0, count=1, device_id=1)
+        with line.spoiled("exception"):
             assert client.read_holding_registers(0, count=1, device_id=1).exception_code == 6
-            assert server.stats.other_units == 1
-        finally:
-            client.close()
+        assert line.server.stats.other_units == 1
+    finally:
+        client.close()
 
 
 @contextmanager

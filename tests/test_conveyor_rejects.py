@@ -10,13 +10,9 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry, BeltReading
-from tofcut.driver.conveyor.config import LinkSettings
-from tofcut.driver.conveyor.link import ConveyorClient
 from tofcut.driver.conveyor.reject_rule import MAX_NESTING, RejectRule, hull_area, measure_track
 from tofcut.driver.conveyor.rejects import CANDIDATES_KEPT, RejectScheduler
 from tofcut.driver.errors import ConfigError
-from tofcut.sim.conveyor import EmulatedConveyor
-from tofcut.sim.modbus_server import PtyModbusServer
 from tofcut.tracker.tracks import Track
 
 WAIT_S = 5.0
@@ -261,7 +257,9 @@ def test_frames_the_belt_cannot_place_are_counted_not_guessed():
 # --- the whole chain over a pseudo-terminal ---------------------------------------------
 
 
-def test_rejects_hit_exactly_the_matching_objects_at_the_right_encoder_count(tmp_path):
+def test_rejects_hit_exactly_the_matching_objects_at_the_right_encoder_count(
+    tofcut_conveyor_factory,
+):
     """Tracks of six boxes ride the emulated belt past the camera; the rule picks the tall
     ones; the project's client reads the encoder over a pty and writes the diverter; the
     emulated diverter records the encoder count each command came at.
@@ -280,32 +278,30 @@ def test_rejects_hit_exactly_the_matching_objects_at_the_right_encoder_count(tmp
     }
     tall = {i for i, (_, size) in objects.items() if size[2] > 0.08}
     now = [0.0]
-    conveyor = EmulatedConveyor(speed, clock=lambda: now[0], start_count=1000)
-    link = LinkSettings(parity="N", timeout_s=0.1, poll_hz=200.0, heartbeat_s=0.0)
-    with PtyModbusServer(conveyor) as server:
-        link = LinkSettings(**{**link.__dict__, "port": server.port})
-        with ConveyorClient(link) as client:
-            scheduler = RejectScheduler(
-                RejectRule.parse("height > 0.08"), BELT, diverter_m, client.reading_at,
-                lambda e: client.divert(e.track_id),
-            )  # fmt: skip
-            client.add_listener(scheduler.on_reading)
-            for k in range(round((diverter_m + 0.62) / step_m)):
-                now[0] = k * step_m / speed
-                count = conveyor.count()
-                reading = client.wait_for(lambda r, c=count: r.count == c, WAIT_S)
-                assert reading is not None
-                travel = reading.distance_m
-                tracks = [
-                    box_track(i, s0 + travel, size, seed=k * 10 + i)
-                    for i, (s0, size) in objects.items()
-                    if -0.35 < s0 + travel < 0.35
-                ]
-                scheduler.observe(tracks, reading.time_ns)
-                # Let the link send what this reading fired before the belt moves on.
-                fired = scheduler.stats.fired
-                client.wait_stats(lambda s, f=fired: s.diverter_writes >= f, WAIT_S)
-            stats = client.stats
+    line = tofcut_conveyor_factory(speed, clock=lambda: now[0], start_count=1000)
+    conveyor = line.controller
+    with line.connect(timeout_s=0.1, poll_hz=200.0, heartbeat_s=0.0) as client:
+        scheduler = RejectScheduler(
+            RejectRule.parse("height > 0.08"), BELT, diverter_m, client.reading_at,
+            lambda e: client.divert(e.track_id),
+        )  # fmt: skip
+        client.add_listener(scheduler.on_reading)
+        for k in range(round((diverter_m + 0.62) / step_m)):
+            now[0] = k * step_m / speed
+            count = conveyor.count()
+            reading = client.wait_for(lambda r, c=count: r.count == c, WAIT_S)
+            assert reading is not None
+            travel = reading.distance_m
+            tracks = [
+                box_track(i, s0 + travel, size, seed=k * 10 + i)
+                for i, (s0, size) in objects.items()
+                if -0.35 < s0 + travel < 0.35
+            ]
+            scheduler.observe(tracks, reading.time_ns)
+            # Let the link send what this reading fired before the belt moves on.
+            fired = scheduler.stats.fired
+            client.wait_stats(lambda s, f=fired: s.diverter_writes >= f, WAIT_S)
+        stats = client.stats
     assert {e.track_id for e in scheduler.events} == tall
     assert scheduler.stats.passed == len(objects) - len(tall)
     commands = conveyor.diverter_commands

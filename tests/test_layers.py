@@ -1,7 +1,7 @@
-"""The layers import one way: driver → tracker → tools, with sim under the driver
-(docs/architecture.md). Read from the code's own imports with grimp (the graph
-import-linter uses), so a lazy import inside a function counts as much as one at the top of
-a module."""
+"""The layers import one way: driver → tracker → tools, with sim under the driver and the
+test fixtures (testing) on top (docs/architecture.md). Read from the code's own imports with
+grimp (the graph import-linter uses), so a lazy import inside a function counts as much as
+one at the top of a module."""
 
 from __future__ import annotations
 
@@ -30,6 +30,17 @@ FORBIDDEN = [
     ("tofcut.tools.experiments", "tofcut.tools.commands"),
     # the multi-object tracker does not use the paper's single-target segmentation
     ("tofcut.tracker.tracker", "tofcut.tracker.paper"),
+    # testing (the pytest plugin) is on top, beside the commands: nothing imports it, and it
+    # opens cameras by the pipeline's source names, not through a command or the tracker
+    ("tofcut.driver", "tofcut.testing"),
+    ("tofcut.sim", "tofcut.testing"),
+    ("tofcut.tracker", "tofcut.testing"),
+    ("tofcut.tools", "tofcut.testing"),
+    ("tofcut.testing", "tofcut.tracker"),
+    ("tofcut.testing", "tofcut.tools.commands"),
+    ("tofcut.testing", "tofcut.tools.bench"),
+    ("tofcut.testing", "tofcut.tools.evaluation"),
+    ("tofcut.testing", "tofcut.tools.experiments"),
 ]
 
 COMMAND_MODULES = sorted(module for module, _ in COMMANDS.values())
@@ -50,6 +61,8 @@ def test_the_graph_sees_the_imports_that_are_allowed(graph):
         ("tofcut.tools.bench", "tofcut.tools.pipeline"),
         ("tofcut.tracker.paper", "tofcut.tracker.components_kernels"),
         ("tofcut.tools.commands.live", "tofcut.tools.commands.tracking"),
+        ("tofcut.testing", "tofcut.tools.pipeline"),
+        ("tofcut.testing", "tofcut.sim"),
     ]:
         assert graph.chain_exists(importer=importer, imported=imported, as_packages=True)
 

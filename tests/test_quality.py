@@ -52,5 +52,9 @@ def test_the_wheel_installs_only_the_tofcut_package(tmp_path):
     for sub in ("driver", "sim", "tracker", "tools"):
         assert f"tofcut/{sub}/__init__.py" in names
     assert "tofcut/py.typed" in names
+    assert "tofcut/testing/plugin.py" in names  # and pytest finds it by its entry point:
+    (entry_points,) = [n for n in names if n.endswith(".dist-info/entry_points.txt")]
+    text = zipfile.ZipFile(wheel).read(entry_points).decode()
+    assert "[pytest11]\ntofcut = tofcut.testing.plugin" in text
     assert "tofcut/sim/scenes/conveyor.toml" in names
     assert not any(n.startswith("tofcut/tests/") for n in names)

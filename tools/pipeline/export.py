@@ -33,6 +33,7 @@ from PIL import Image
 
 from tofcut.driver.calibration import Calibration, pixel_rays
 from tofcut.driver.frames import Frame
+from tofcut.driver.intrinsics import Intrinsics
 
 DEPTH_SCALE = 1000.0
 """PNG units per metre (Open3D's `depth_scale`)."""
@@ -97,20 +98,19 @@ def write_depth_png(path: Path, frame: Frame) -> int:
 
 
 def pinhole_fit(calib: Calibration) -> dict[str, float]:
-    """The pinhole nearest the lens (least squares over every pixel centre) and its residual."""
+    """The pinhole nearest the lens (`Intrinsics.fitted`) and its residual."""
+    pinhole = Intrinsics.fitted(calib)
     rays = pixel_rays(calib)
     xn, yn = rays[..., 0] / rays[..., 2], rays[..., 1] / rays[..., 2]
     v, u = np.mgrid[0 : calib.height, 0 : calib.width].astype(np.float64)
-    fx, cx = np.polyfit(xn.ravel(), u.ravel(), 1)
-    fy, cy = np.polyfit(yn.ravel(), v.ravel(), 1)
-    du, dv = u - (fx * xn + cx), v - (fy * yn + cy)
-    pixels = np.hypot(du, dv)
+    fx, fy, cx, cy = pinhole.fx, pinhole.fy, pinhole.cx, pinhole.cy
+    pixels = np.hypot(u - (fx * xn + cx), v - (fy * yn + cy))
     lateral = np.hypot((u - cx) / fx - xn, (v - cy) / fy - yn)  # metres per metre of z
     return {
-        "fx": float(fx),
-        "fy": float(fy),
-        "cx": float(cx),
-        "cy": float(cy),
+        "fx": fx,
+        "fy": fy,
+        "cx": cx,
+        "cy": cy,
         "rms_px": float(np.sqrt(np.mean(pixels**2))),
         "max_px": float(pixels.max()),
         "max_lateral_mm_per_m": float(lateral.max() * 1000.0),
@@ -118,19 +118,17 @@ def pinhole_fit(calib: Calibration) -> dict[str, float]:
 
 
 def intrinsics(calib: Calibration) -> dict[str, Any]:
-    """What `intrinsics.json` holds (see the module's docstring)."""
+    """What `intrinsics.json` holds (see the module's docstring); `Intrinsics.from_json`
+    reads it back."""
     fit = pinhole_fit(calib)
-    fx, fy, cx, cy = fit["fx"], fit["fy"], fit["cx"], fit["cy"]
+    pinhole = Intrinsics(
+        width=calib.width, height=calib.height, fx=fit["fx"], fy=fit["fy"], cx=fit["cx"],
+        cy=fit["cy"],
+    )  # fmt: skip
     k = [calib.fx, 0.0, calib.cx, 0.0, calib.fy, calib.cy, 0.0, 0.0, 1.0]
     exact = not any(calib.distortion)
     return {
-        "width": calib.width,
-        "height": calib.height,
-        "fx": fx,
-        "fy": fy,
-        "cx": cx,
-        "cy": cy,
-        "intrinsic_matrix": [fx, 0.0, 0.0, 0.0, fy, 0.0, cx, cy, 1.0],
+        **pinhole.to_json(),
         "depth_scale": DEPTH_SCALE,
         "depth": "z along the optical axis in millimetres (uint16), 0 where invalid",
         "pinhole_fit": {
