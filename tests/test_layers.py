@@ -59,7 +59,7 @@ def test_the_graph_sees_the_imports_that_are_allowed(graph):
         ("tofcut.sim", "tofcut.driver"),
         ("tofcut.tools.commands", "tofcut.tools.pipeline"),
         ("tofcut.tools.bench", "tofcut.tools.pipeline"),
-        ("tofcut.tracker.paper", "tofcut.tracker.kernels"),
+        ("tofcut.tracker.paper", "tofcut.tracker.components_kernels"),
         ("tofcut.tools.commands.live", "tofcut.tools.commands.tracking"),
         ("tofcut.testing", "tofcut.tools.pipeline"),
         ("tofcut.testing", "tofcut.sim"),

@@ -8,8 +8,8 @@ import pytest
 
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 from tofcut.tracker.paper import energy as en
-from tofcut.tracker.paper.energy import OFFSETS, pair_slices
 
 # --- the formulas in plain numpy ------------------------------------------------------------
 

@@ -12,15 +12,9 @@ from hypothesis import strategies as st
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import maximum_flow
 
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 from tofcut.tracker.paper.contraction import cut_lower_bounds, merged_nodes, solve_merged
-from tofcut.tracker.paper.energy import (
-    OFFSETS,
-    energy_of,
-    pair_slices,
-    potts_bound,
-    potts_weights,
-    seed_costs,
-)
+from tofcut.tracker.paper.energy import energy_of, potts_bound, potts_weights, seed_costs
 from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
 
 

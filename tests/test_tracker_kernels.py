@@ -1,15 +1,29 @@
-"""The compiled tracker (`tofcut.tracker.kernels`) against its numpy reference: the same
-labels and tracks, frame by frame, on emulated scenes."""
+"""The compiled tracker (the `tofcut.tracker.*_kernels` modules) against its numpy reference:
+the same labels and tracks, frame by frame, on emulated scenes."""
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+
+import numba
 import numpy as np
 import pytest
 
 from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
 from tofcut.sim.preview import decode, scene_exposure
-from tofcut.tracker import kernels, multicut
+from tofcut.tracker import (
+    compiled,
+    components_kernels,
+    cut_kernels,
+    distance_kernels,
+    measure_kernels,
+    multicut,
+    multicut_kernels,
+    pieces_kernels,
+    stats_kernels,
+)
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -18,7 +32,8 @@ from tofcut.tracker.tracker import Tracker
 
 
 def _kernels():
-    return {name: f for name, f in vars(kernels).items() if getattr(f, "signatures", None)}
+    every = {name: f for name, (f, _) in compiled.KERNELS.items()} | compiled.HELPERS
+    return {name: f for name, f in every.items() if f.signatures}
 
 
 def _same_run(source, frames):
@@ -63,10 +78,10 @@ def test_surface_distances_are_the_brute_force_minimum():
     cloud = rng.normal(size=(300, 3)) * 0.05
     points = rng.normal(size=(500, 3)) * 0.08
     points[0] = np.nan
-    clouds, axes = kernels.sort_surfaces(cloud, np.array([0, len(cloud)]))
+    clouds, axes = distance_kernels.sort_surfaces(cloud, np.array([0, len(cloud)]))
     inverse = np.linalg.inv(np.cov(cloud.T))
     spread = 0.015 + 0.02 * rng.random(len(points))  # each point's own (its range noise)
-    distance, rough = kernels.track_distances(
+    distance, rough = distance_kernels.track_distances(
         points, np.full(len(points), np.inf), np.zeros((1, 3)), inverse[None],
         clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, spread, 0.1,
     )  # fmt: skip
@@ -79,7 +94,7 @@ def test_surface_distances_are_the_brute_force_minimum():
     # with a ceiling, points the shape alone prices out are not measured: their cost from
     # the shape alone comes back instead
     ceiling = np.full(len(points), 8.0 + 2.5 * np.nanmedian(shape))
-    capped, rough = kernels.track_distances(
+    capped, rough = distance_kernels.track_distances(
         points, ceiling, np.zeros((1, 3)), inverse[None],
         clouds, np.array([0, len(cloud)]), axes, 8.0, 2.5, 0.2, spread, 0.1,
     )  # fmt: skip
@@ -104,7 +119,7 @@ def test_expansion_terms_are_the_numpy_ones():
     labels = rng.choice([0, 2], 40).astype(np.int64)
     for alpha in range(3):
         every = np.arange(40)
-        source, sink, si, sj, pair = kernels.expansion_terms(
+        source, sink, si, sj, pair = multicut_kernels.expansion_terms(
             unary, labels, alpha, i, j, w, every, every
         )
         np.testing.assert_array_equal(si, i)
@@ -195,10 +210,10 @@ def test_pieces_are_numbered_as_scipy_labels_them():
         h, w = rng.integers(1, 40, 2)
         body = rng.random((h, w)) < rng.random()
         want, _ = ndimage.label(body)
-        np.testing.assert_array_equal(kernels.label_pieces(body), want)
+        np.testing.assert_array_equal(components_kernels.label_pieces(body), want)
     checkerboard = np.indices((9, 11)).sum(axis=0) % 2 == 0  # the most pieces a frame holds
     np.testing.assert_array_equal(
-        kernels.label_pieces(checkerboard), ndimage.label(checkerboard)[0]
+        components_kernels.label_pieces(checkerboard), ndimage.label(checkerboard)[0]
     )
 
 
@@ -209,12 +224,12 @@ def test_point_stats_are_numpys_mean_min_and_max():
         mask = np.zeros(144 * 176, bool)
         mask[rng.choice(mask.size, n, replace=False)] = True
         points = xyz[mask.reshape(144, 176)]  # as the tracker takes a mask's points
-        mean, lo, hi = kernels.point_stats(points)
+        mean, lo, hi = measure_kernels.point_stats(points)
         np.testing.assert_array_equal(mean, points.mean(axis=0))
         np.testing.assert_array_equal(lo, points.min(axis=0))
         np.testing.assert_array_equal(hi, points.max(axis=0))
     points[3, 1] = np.nan
-    _, lo, hi = kernels.point_stats(points)
+    _, lo, hi = measure_kernels.point_stats(points)
     np.testing.assert_array_equal(lo, points.min(axis=0))
     np.testing.assert_array_equal(hi, points.max(axis=0))
 
@@ -236,16 +251,18 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
             jump &= body[a] | body[b]
             want[a] &= ~(jump & (far[a] > far[b]))
             want[b] &= ~(jump & ~(far[a] > far[b]))
-        np.testing.assert_array_equal(kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want)
+        np.testing.assert_array_equal(
+            pieces_kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want
+        )
 
 
 def test_the_compiled_median_is_numpys():
     rng = np.random.default_rng(10)
     for n in (1, 2, 3, 8, 9, 100, 6263, 6264):
         for values in (rng.random(n), rng.integers(0, 4, n).astype(float), np.sort(rng.random(n))):
-            assert kernels.median(values) == np.median(values)
+            assert stats_kernels.median(values) == np.median(values)
     values[1] = np.nan
-    assert np.isnan(kernels.median(values))
+    assert np.isnan(stats_kernels.median(values))
 
 
 def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():
@@ -253,12 +270,12 @@ def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis
     clouds = [rng.normal(size=(n, 3)) * [0.05, 0.1, 0.02] for n in (1, 7, 300, 401)]
     clouds.append(np.repeat(rng.normal(size=(3, 3)), 40, axis=0))  # many ties
     starts = np.cumsum([0] + [len(c) for c in clouds])
-    out, axes = kernels.sort_surfaces(np.concatenate(clouds), starts)
+    out, axes = distance_kernels.sort_surfaces(np.concatenate(clouds), starts)
     for k, cloud in enumerate(clouds):
         got = out[starts[k] : starts[k + 1]]
         along = got[:, axes[k]]
-        for s in range(kernels.SLAB, len(got), kernels.SLAB):
-            assert along[s - kernels.SLAB : s].max() <= along[s:].min()
+        for s in range(distance_kernels.SLAB, len(got), distance_kernels.SLAB):
+            assert along[s - distance_kernels.SLAB : s].max() <= along[s:].min()
         np.testing.assert_array_equal(np.unique(got, axis=0), np.unique(cloud, axis=0))
         assert len(got) == len(cloud)
 
@@ -268,25 +285,80 @@ def test_grouping_is_a_stable_argsort():
     for n in (0, 1, 2, 3, 10, 101, 1000):
         for count in (1, 3, 40):
             keys = rng.integers(0, count, n).astype(np.int64)
-            order, bounds = kernels._grouped(keys, count)
+            order, bounds = cut_kernels._grouped(keys, count)
             want = np.argsort(keys, kind="stable")
             np.testing.assert_array_equal(order, want)
             np.testing.assert_array_equal(bounds, np.searchsorted(keys[want], np.arange(count + 1)))
 
 
 def test_every_step_the_reference_replaces_is_still_a_step_of_the_tracker():
-    # the reference overrides the tracker's steps by name: a step renamed or removed in the
-    # tracker would leave the reference's version unused, and the equivalence tests above
-    # would compare the compiled path with itself
+    # the reference's parts override the tracker's steps by name: a step renamed or removed
+    # in the tracker would leave the reference's version unused, and the equivalence tests
+    # above would compare the compiled path with itself
     from tofcut.tracker.background import BackgroundModel
-    from tofcut.tracker.reference import ReferenceBackground
+    from tofcut.tracker.cut import JointCut
+    from tofcut.tracker.pieces import Pieces
+    from tofcut.tracker.reference import ReferenceBackground, ReferenceCut, ReferencePieces
 
-    own_helpers = {"_ties"}  # the reference's own, called by its steps
-    for ref, base in ((ReferenceTracker, Tracker), (ReferenceBackground, BackgroundModel)):
+    parts = {"background_model": BackgroundModel, "cut_model": JointCut, "pieces_model": Pieces}
+    for name, base in parts.items():
+        assert getattr(Tracker, name) is base
+        assert issubclass(getattr(ReferenceTracker, name), base)
+    for ref, base in (
+        (ReferenceCut, JointCut), (ReferencePieces, Pieces), (ReferenceBackground, BackgroundModel)
+    ):  # fmt: skip
         replaced = {
             name for name, value in vars(ref).items()
-            if callable(value) and not name.startswith("__") and name not in own_helpers
+            if callable(value) and not name.startswith("__")
         }  # fmt: skip
         assert replaced, ref
         missing = [name for name in replaced if not callable(getattr(base, name, None))]
         assert not missing, f"{ref.__name__} replaces {missing}, which {base.__name__} lacks"
+
+
+def _compiled_in(module_name):
+    """The numba functions a module defines (not those it imports), by module and name."""
+    module = importlib.import_module(module_name)
+    return {
+        f"{module_name}.{name}": f
+        for name, f in vars(module).items()
+        if isinstance(f, numba.core.dispatcher.Dispatcher) and f.py_func.__module__ == module_name
+    }
+
+
+def test_every_compiled_kernel_is_registered_for_the_warm_up():
+    import tofcut.tracker
+
+    # every compiled function of the multi-object tracker (the paper's segmentation, in its
+    # own package, is not the tracker's) lives in a kernel module...
+    modules = [f"tofcut.tracker.{m.name}" for m in pkgutil.iter_modules(tofcut.tracker.__path__)]
+    assert set(compiled.kernel_modules()) < set(modules)
+    stray = [
+        name for module in modules if module not in compiled.kernel_modules()
+        for name in _compiled_in(module)
+    ]  # fmt: skip
+    assert not stray, f"compiled outside a *_kernels module: {stray}"
+    found = {}
+    for module in compiled.kernel_modules():
+        found |= _compiled_in(module)
+    assert len(found) >= 40
+    # ...registered as a kernel, with the argument types it is called with, or as a helper
+    registered = {name: f for name, (f, _) in compiled.KERNELS.items()} | compiled.HELPERS
+    unregistered = sorted(name for name, f in found.items() if registered.get(name) is not f)
+    assert not unregistered, f"compiled, but registered for the warm-up neither way: {unregistered}"
+    # a helper is warmed up inside the kernels that call it: some kernel reaches it
+    helpers = {id(f): f for f in compiled.HELPERS.values()}
+    reached, todo = set(), [f for f, _ in compiled.KERNELS.values()]
+    while todo:
+        f = todo.pop()
+        for name in f.py_func.__code__.co_names:
+            callee = id(f.py_func.__globals__.get(name))
+            if callee in helpers and callee not in reached:
+                reached.add(callee)
+                todo.append(helpers[callee])
+    idle = sorted(name for name, f in compiled.HELPERS.items() if id(f) not in reached)
+    assert not idle, f"helpers no kernel calls, so never warmed up: {idle}"
+    # and the warm-up loads each kernel for each of its examples
+    compiled.warm_up()
+    for name, (f, examples) in compiled.KERNELS.items():
+        assert len(f.signatures) >= len(examples), name

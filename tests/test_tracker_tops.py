@@ -8,7 +8,7 @@ import pytest
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
-from tofcut.tracker import kernels
+from tofcut.tracker import components_kernels
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tops import facing_up, one_object, split_by_tops
 
@@ -35,7 +35,7 @@ def _split(source: SceneSource) -> tuple[np.ndarray, np.ndarray]:
     frame, truth = decode(source, scene_exposure(source, 0.0))
     body = (truth.labels > 0) & frame.valid
     noise = range_noise(frame, 0.004)
-    pieces = kernels.label_pieces(body)
+    pieces = components_kernels.label_pieces(body)
     belt = source.belt
     assert belt is not None
     up = facing_up(body, frame.xyz, noise, belt.geometry)

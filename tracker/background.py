@@ -14,17 +14,15 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels
+from tofcut.tracker import background_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
-
-B = npt.NDArray[np.bool_]
+from tofcut.tracker.neighbours import EIGHT
 
 NOISE_SHARE = 0.7
 """Share of the noise its amplitude implies that a pixel's learned noise is at least: three
@@ -259,7 +257,7 @@ class BackgroundModel:
         loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
         if not loud.any():
             return nearer, self.sigma
-        median = kernels.median3_at(nearer, loud)
+        median = stats_kernels.median3_at(nearer, loud)
         return (
             np.where(loud, median, nearer),
             np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
@@ -275,7 +273,7 @@ class BackgroundModel:
         p = self.params
         usable = free & frame.valid
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
-        kernels.follow_scene(
+        background_kernels.follow_scene(
             self.range, self.sigma, self.known, self._farther, self._farther_min,
             self._unknown_seen, self._unknown_reads, frame.range, frame.valid, usable,
             near_any(frame.xyz, due, occupied, reach),
@@ -327,8 +325,8 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
     the image but not its band: they cover their own stretch of the bands beside it, not the
     rail's whole length; a row of boxes as long as the rail is wider than one."""
     # a rail's pixels are broken up by noise: bridged
-    near = ndimage.binary_dilation(above, np.ones((3, 3), bool))
-    parts, _ = ndimage.label(near, np.ones((3, 3), bool))
+    near = ndimage.binary_dilation(above, EIGHT)
+    parts, _ = ndimage.label(near, EIGHT)
     parts = np.where(above, parts, 0)
     rails = np.zeros(above.shape, bool)
     for k, box in enumerate(ndimage.find_objects(parts), start=1):
@@ -367,7 +365,7 @@ def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: Backg
     nearness (over the `usable` pixels in it, at least half of them) is `REGION_SIGMAS` times
     that mean's own noise and half the lowest object's height (`min_height_sigmas`). A low
     object in loud noise, none of whose pixels stands out alone, is found this way."""
-    out: B = kernels.standing_regions(
+    out: B = background_kernels.standing_regions(
         model, sigma, usable, seen, REGION_SIDE, REGION_SIGMAS,
         REGION_HEIGHT_SHARE * params.min_height_sigmas, params.min_height_m,
     )  # fmt: skip

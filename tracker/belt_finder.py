@@ -29,10 +29,9 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 
-from tofcut._types import F64
+from tofcut._types import F32, F64, I64, B
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
 from tofcut.tracker.belt_sweep import (
@@ -43,18 +42,15 @@ from tofcut.tracker.belt_sweep import (
     swept_layers,
 )
 from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.noise import range_noise
-
-F32 = npt.NDArray[np.float32]
-B = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
+from tofcut.tracker.stats import robust_sigma
 
 Travel = Literal["looking", "found", "none", "unsure"]
 """Whether the belt's direction of travel is known: still looking; found; none (nothing moved
 on the belt while the finder looked: a static scene); unsure (things moved, but too little,
 or not together, to tell the belt's travel)."""
 
-MAD_TO_SIGMA = 1.4826
 NOISE_FLOOR_M = 0.003
 """No pixel's range is trusted to better than this (`tofcut.tracker.noise`)."""
 
@@ -236,8 +232,8 @@ class TravelFit:
     """(2,) unit, in the plane's basis."""
     speed_mps: float
     direction_spread_deg: float
-    """How much the tops disagree on the direction (1.4826 × their median absolute deviation:
-    a standard deviation where they scatter normally)."""
+    """How much the tops disagree on the direction (`stats.robust_sigma`: a standard
+    deviation where they scatter normally)."""
     speed_spread_mps: float
     """The same for their speeds along the direction."""
     segments: int
@@ -470,7 +466,7 @@ def find_layers(heights: F64, bin_m: float, min_pixels: int) -> list[tuple[float
         if near.size == 0:
             continue
         med = float(np.median(near))
-        sigma = max(MAD_TO_SIGMA * float(np.median(np.abs(near - med))), bin_m / 2)
+        sigma = max(robust_sigma(near - med), bin_m / 2)
         pixels = int(np.count_nonzero(np.abs(heights - med) < 2 * sigma))
         if pixels >= min_pixels:
             layers.append((med, sigma, pixels))
@@ -583,7 +579,7 @@ def pooled_layers(heights: F32, ok: B, sigma: F32, band: F32, params: FinderPara
 def span_width(xyz: F64, mask: B, normal: F64) -> float:
     """The width (across its long axis, in the plane of `normal`) of the widest piece of
     `mask` that touches two opposite borders of the image; 0 when no piece does."""
-    labels, count = ndimage.label(mask, structure=np.ones((3, 3)))
+    labels, count = ndimage.label(mask, structure=EIGHT)
     if count == 0:
         return 0.0
     n = count + 1
@@ -865,8 +861,8 @@ def travel_from(segments: list[Segment], params: FinderParams) -> TravelFit | No
         speed,
         # how much the tops disagree, each counting once (a weighted spread would be that of
         # the one top that holds most of the weight: nothing)
-        math.degrees(MAD_TO_SIGMA * float(np.median(np.abs(angles - turn)))),
-        MAD_TO_SIGMA * float(np.median(np.abs(along - speed))),
+        math.degrees(robust_sigma(angles - turn)),
+        robust_sigma(along - speed),
         len(moving),
         float(sum(s.seconds for s in moving)),
         max(s.seconds for s in moving),

@@ -20,14 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
-from tofcut.tracker import kernels
+from tofcut._types import F32, F64, B
+from tofcut.tracker import belt_sweep_kernels, stats_kernels
 from tofcut.tracker.errors import SegmentError
-
-F32 = npt.NDArray[np.float32]
-B = npt.NDArray[np.bool_]
 
 INVALID = -1e3
 """Height given to unusable pixels before the median (far below any layer)."""
@@ -88,7 +84,7 @@ def median_heights(xyz: F64, ok: B, normal: F64, at: B | None = None) -> tuple[F
     pixel itself usable)."""
     with np.errstate(invalid="ignore"):
         h = np.where(ok, xyz @ normal, INVALID)
-    h = kernels.median3_at(h, np.ones(ok.shape, np.bool_) if at is None else at)
+    h = stats_kernels.median3_at(h, np.ones(ok.shape, np.bool_) if at is None else at)
     return h, ok & (h > INVALID / 2)
 
 
@@ -98,7 +94,7 @@ def swept_layers(
     """Score each layer (offsets n·p) over (samples, pixels) arrays of heights, usability,
     noise and on-plane band."""
     reach = np.maximum(np.float32(3.0) * sigma, np.float32(params.above_m))
-    swept, on, squares = kernels.sweep_scores(
+    swept, on, squares = belt_sweep_kernels.sweep_scores(
         heights, ok, reach, band, np.asarray(layers, np.float64), params.min_times
     )
     return [

@@ -13,13 +13,10 @@ from dataclasses import dataclass
 
 import maxflow
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I64
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.kernels import cheapest_where, expansion_terms, moving_graph, settled
-
-I64 = npt.NDArray[np.int64]
+from tofcut.tracker.multicut_kernels import cheapest_where, expansion_terms, moving_graph, settled
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,7 +84,7 @@ class _Core:
 
     @classmethod
     def of(cls, problem: PottsProblem, start: I64 | None) -> _Core:
-        """From each node's cheapest label, a node settled on it (`kernels.settled`) never
+        """From each node's cheapest label, a node settled on it (`multicut_kernels.settled`) never
         moves, and the graph of every move is the smaller for leaving it out; from a given
         `start`, every node may move."""
         move = ~settled(problem.unary, problem.i, problem.j, problem.w)

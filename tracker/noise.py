@@ -14,23 +14,22 @@ import numpy as np
 
 from tofcut._types import F64
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels
+from tofcut.tracker import noise_kernels, stats_kernels
+from tofcut.tracker.stats import MAD_TO_SIGMA
 
-MAD_TO_SIGMA = 1.4826
-"""A normal variable's σ over its median absolute value."""
 FIT_STRIDE = 4
 
 
 def range_noise(frame: Frame, floor_m: float) -> F64:
     """(H, W) range noise σ of every pixel, metres, at least `floor_m` (inf where invalid).
     The scale is fitted on every FIT_STRIDE-th row: plenty of pairs, a quarter of the work.
-    The per-pixel arithmetic is compiled (`kernels.noise_fit`; `tofcut.tracker.reference`
-    holds the numpy it replaces)."""
-    shape, ratios = kernels.noise_fit(
+    The per-pixel arithmetic is compiled (`noise_kernels`; `tofcut.tracker.reference` holds
+    the numpy it replaces)."""
+    shape, ratios = noise_kernels.noise_fit(
         frame.intensity, frame.amplitude, frame.valid, frame.range, FIT_STRIDE
     )
     if not ratios.size:
         return np.where(frame.valid, floor_m, np.inf)
-    scale = MAD_TO_SIGMA * float(kernels.median(ratios))
-    noise: F64 = kernels.noise_scaled(shape, scale, floor_m)
+    scale = MAD_TO_SIGMA * float(stats_kernels.median(ratios))
+    noise: F64 = noise_kernels.noise_scaled(shape, scale, floor_m)
     return noise

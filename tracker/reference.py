@@ -1,17 +1,23 @@
-"""The tracker's numpy reference: `ReferenceTracker` computes the cut and the pieces with the
-plain numpy code the compiled kernels (`tofcut.tracker.kernels`) replaced. Tests run both
-trackers over the same frames and require the same labels and tracks; it is not fast."""
+"""The tracker's numpy reference: `ReferenceTracker` is the tracker made of parts that compute
+the cut (`ReferenceCut`), the pieces (`ReferencePieces`), the scenery's following
+(`ReferenceBackground`) and the range noise with the plain numpy code the compiled kernels
+(`tofcut.tracker.compiled`) replaced. Tests run both trackers over the same frames and require
+the same labels and tracks; it is not fast. Each part replaces steps of the tracker's own by
+name, and says so at import where one of them is no longer a step there."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TypeVar
+
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from tofcut._types import F64
+from tofcut._types import F64, I32, I64, U16, B
+from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
@@ -21,14 +27,17 @@ from tofcut.tracker.background import (
     on_belt_height,
     standing_regions,
 )
-from tofcut.tracker.kernels import NEIGHBOURS
+from tofcut.tracker.cut import JointCut
+from tofcut.tracker.live_track import LiveTrack
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
-from tofcut.tracker.noise import FIT_STRIDE, MAD_TO_SIGMA
-from tofcut.tracker.tracker import Tracker, _quietened
+from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
+from tofcut.tracker.noise import FIT_STRIDE
+from tofcut.tracker.params import TrackerParams
+from tofcut.tracker.pieces import Pieces, quietened
+from tofcut.tracker.stats import MAD_TO_SIGMA
+from tofcut.tracker.tracker import Tracker
 
-B = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
-_Index = tuple[slice, slice]
+T = TypeVar("T")
 
 
 def range_noise(frame: Frame, floor_m: float) -> F64:
@@ -46,6 +55,23 @@ def range_noise(frame: Frame, floor_m: float) -> F64:
     return np.maximum(scale * shape, floor_m)
 
 
+def _replacing(base: type) -> Callable[[type[T]], type[T]]:
+    """A reference part replaces steps of `base` by name: fail at once, on import, where one
+    of them is not a step of `base` (renamed or removed there, the reference's version
+    would go unused, and the equivalence tests would compare the compiled path with
+    itself)."""
+
+    def check(cls: type[T]) -> type[T]:
+        replaced = [name for name, value in vars(cls).items() if callable(value)]
+        missing = [name for name in replaced if not callable(getattr(base, name, None))]
+        if missing:
+            raise TypeError(f"{cls.__name__} replaces {missing}, which {base.__name__} lacks")
+        return cls
+
+    return check
+
+
+@_replacing(BackgroundModel)
 class ReferenceBackground(BackgroundModel):
     """The empty-scene model following the scene in plain numpy."""
 
@@ -80,59 +106,42 @@ class ReferenceBackground(BackgroundModel):
         self.known |= newly
 
 
-class ReferenceTracker(Tracker):
-    """The tracker with every per-pixel step in plain numpy over the whole frame."""
+@_replacing(JointCut)
+class ReferenceCut(JointCut):
+    """The joint cut in plain numpy over the whole frame. Its steps repeat `JointCut`'s on
+    purpose (the same signatures, the same order), in the numpy the tests hold it to."""
 
-    background_model = ReferenceBackground
-
-    def _ties(self, frame: Frame) -> tuple[list[tuple[_Index, _Index, F64]], F64]:
-        """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the
-        sum of the weights at each pixel."""
-        p = self.params
-        h, w = frame.shape
-        valid = frame.valid
-        xyz = frame.xyz
-        ties = []
-        total = np.zeros((h, w))
-        for dv, du, factor in NEIGHBOURS:
-            a, b = _shifted(h, w, dv, du)
-            d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
-            wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
-            wt[~(valid[a] & valid[b])] = p.smoothness * factor
-            ties.append((a, b, wt))
-            total[a] += wt
-            total[b] += wt
-        return ties, total
-
-    def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
+    def labels(
+        self, frame: Frame, noise: F64, tracks: list[LiveTrack], background: BackgroundModel
+    ) -> U16:
         p = self.params
         h, w = frame.shape
         labels = np.zeros((h, w), np.uint16)
-        if not self._tracks:
+        if not tracks:
             return labels
         valid = frame.valid
-        u0 = self._background_cost(frame)
+        u0 = self.background_cost(frame, background)
         u0[~valid] = 0.0
-        ties, total = self._ties(frame)
+        ties, total = _ties(frame, p)
         free = valid & (p.object_cost - u0 <= total)
         if not free.any():
             return labels
         # the 3D distance term can only add cost: now fix what no track can win
         first = np.nonzero(free)
-        cost = p.object_cost + p.beta * self._distances(frame.xyz[first], noise[first])
+        cost = p.object_cost + p.beta * self.distances(tracks, frame.xyz[first], noise[first])
         free[first] = cost.min(axis=0) - u0[first] <= total[first]
         if not free.any():
             return labels
         column = np.full((h, w), -1, np.int64)
         column[first] = np.arange(first[0].size)
-        runs, _ = ndimage.label(free | ~valid, structure=np.ones((3, 3), bool))
+        runs, _ = ndimage.label(free | ~valid, structure=EIGHT)
         keep = np.unique(runs[free])
         free |= ~valid & np.isin(runs, keep[keep > 0])
         n = int(free.sum())
         index = np.full((h, w), -1, np.int64)
         index[free] = np.arange(n)
         where = np.nonzero(free)
-        unary = np.zeros((len(self._tracks) + 1, n))
+        unary = np.zeros((len(tracks) + 1, n))
         unary[0] = u0[where]
         known = column[where]  # invalid pixels have no column: no data cost either way
         unary[1:, known >= 0] = cost[:, known[known >= 0]]
@@ -150,17 +159,17 @@ class ReferenceTracker(Tracker):
         chosen = _solve_by_parts(
             unary, np.concatenate(ei), np.concatenate(ej), np.concatenate(ew), total[where]
         )
-        ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
+        ids = np.array([0] + [t.id for t in tracks], np.uint16)
         labels[where] = ids[chosen]
         return labels
 
-    def _distances(self, points: F64, noise: F64) -> F64:
+    def distances(self, tracks: list[LiveTrack], points: F64, noise: F64) -> F64:
         p = self.params
         spread = np.maximum(p.surface_sigma_m, np.sqrt(2.0) * noise)
         reach = spread.max(initial=0.0) * np.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
-        out = np.empty((len(self._tracks), len(points)))
+        out = np.empty((len(tracks), len(points)))
         finite = np.isfinite(points).all(axis=1)
-        for k, t in enumerate(self._tracks):
+        for k, t in enumerate(tracks):
             d = points - t.filter.position
             out[k] = np.einsum("ni,ij,nj->n", d, np.linalg.inv(t.shape), d)
             if p.surface_weight > 0:
@@ -169,10 +178,9 @@ class ReferenceTracker(Tracker):
                 out[k] += p.surface_weight * (near / spread) ** 2
         return np.where(np.isnan(out), np.inf, out)
 
-    def _background_cost(self, frame: Frame) -> F64:
+    def background_cost(self, frame: Frame, background: BackgroundModel) -> F64:
         p = self.params
-        bg = self.background
-        assert bg is not None
+        bg = background
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
         nearer, sigma = bg.weighed_nearness(frame)
@@ -180,27 +188,43 @@ class ReferenceTracker(Tracker):
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
 
-    def _loose(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64
-    ) -> npt.NDArray[np.int32]:
-        bg = self.background
-        assert bg is not None
+
+@_replacing(Pieces)
+class ReferencePieces(Pieces):
+    """Masks cut into pieces in plain numpy over the whole frame, repeating `Pieces`' steps
+    on purpose (the same signatures, the same order)."""
+
+    def loose(
+        self,
+        frame: Frame,
+        labels: U16,
+        noise: F64,
+        background: BackgroundModel,
+        belt: BeltGeometry | None,
+    ) -> I32:
+        bg = background
         usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
         body |= standing_regions(bg.range, bg.sigma, usable, frame.range, bg.params)
-        if self.params.rigid and self.belt is not None:
-            body &= on_belt_height(frame.xyz, self.belt)
-        return self._pieces(frame, body, noise)
+        if self.params.rigid and belt is not None:
+            body &= on_belt_height(frame.xyz, belt)
+        return self.split(frame, body, noise, belt)
 
-    def _pieces(
-        self, frame: Frame, body: B, noise: F64, step_noise: bool = True
-    ) -> npt.NDArray[np.int32]:
+    def split(
+        self,
+        frame: Frame,
+        body: B,
+        noise: F64,
+        belt: BeltGeometry | None,
+        step_noise: bool = True,
+    ) -> I32:
         h, w = frame.shape
         body = body.copy()
-        xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
+        quiet = quietened(frame, body, noise, self.params.connect_m)
+        xyz, rng, noise = quiet.xyz, quiet.range, quiet.noise
         spread2 = 9.0 * noise**2 if step_noise else np.zeros(frame.shape)
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = _shifted(h, w, dv, du)
+        for k in (0, 1):  # right, down
+            a, b = pair_slices((h, w), k)
             allowed = np.maximum(self.params.connect_m**2, spread2[a] + spread2[b])
             jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > allowed
             far_a = jump & (rng[a] > rng[b])
@@ -208,11 +232,39 @@ class ReferenceTracker(Tracker):
             body[a] &= ~far_a
             body[b] &= ~far_b
         pieces, _ = ndimage.label(body)
-        return self._by_tops(xyz, body, np.asarray(pieces, np.int32), noise)
+        return self.by_tops(xyz, body, np.asarray(pieces, np.int32), noise, belt)
+
+
+class ReferenceTracker(Tracker):
+    """The tracker with every per-pixel step in plain numpy over the whole frame: the same
+    tracker, made of the reference's parts."""
+
+    background_model = ReferenceBackground
+    cut_model = ReferenceCut
+    pieces_model = ReferencePieces
+
+
+def _ties(frame: Frame, p: TrackerParams) -> tuple[list[tuple[Region, Region, F64]], F64]:
+    """Potts weight of every neighbour pair, λ·exp(−|D_p − D_q|² / 2σ²) (eq. 7), and the sum
+    of the weights at each pixel."""
+    h, w = frame.shape
+    valid = frame.valid
+    xyz = frame.xyz
+    ties = []
+    total = np.zeros((h, w))
+    for k, factor in enumerate(FACTORS):
+        a, b = pair_slices((h, w), k)
+        d2 = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1)
+        wt = p.smoothness * factor * np.exp(-d2 / (2 * p.smoothness_sigma_m**2))
+        wt[~(valid[a] & valid[b])] = p.smoothness * factor
+        ties.append((a, b, wt))
+        total[a] += wt
+        total[b] += wt
+    return ties, total
 
 
 def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
-    """Minimise the Potts energy part by part (see `tofcut.tracker.tracker`)."""
+    """Minimise the Potts energy part by part (see `tofcut.tracker.cut.PottsParts`)."""
     n = unary.shape[1]
     graph = coo_matrix((np.ones(i.size), (i, j)), shape=(n, n))
     parts, part_of = connected_components(graph, directed=False)
@@ -247,14 +299,3 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
-
-
-def _shifted(h: int, w: int, dv: int, du: int) -> tuple[_Index, _Index]:
-    """Index pairs (a, b) of every pixel and its neighbour at (dv, du)."""
-    rows_a = slice(0, h - dv)
-    rows_b = slice(dv, h)
-    if du >= 0:
-        cols_a, cols_b = slice(0, w - du), slice(du, w)
-    else:
-        cols_a, cols_b = slice(-du, w), slice(0, w + du)
-    return (rows_a, cols_a), (rows_b, cols_b)

@@ -1,6 +1,7 @@
-"""`np.cov` and `np.percentile` for the tracker's point clouds: the same numbers (the same
-operations in the same order), without the argument handling that costs them more than
-the arithmetic on a few hundred points."""
+"""Statistics for the tracker: robust spreads (`MAD_TO_SIGMA`, `robust_sigma`), and `np.cov`
+and `np.percentile` for its point clouds: the same numbers (the same operations in the same
+order), without the argument handling that costs them more than the arithmetic on a few
+hundred points. Compiled ones (the median, 3×3 medians) are in `stats_kernels`."""
 
 from __future__ import annotations
 
@@ -9,6 +10,15 @@ import math
 import numpy as np
 
 from tofcut._types import F64
+
+MAD_TO_SIGMA = 1.4826
+"""A normal variable's σ over its median absolute deviation."""
+
+
+def robust_sigma(deviations: F64) -> float:
+    """σ of values that scatter normally, from their deviations from their centre:
+    `MAD_TO_SIGMA` × the median absolute deviation (a few outliers do not move it)."""
+    return MAD_TO_SIGMA * float(np.median(np.abs(deviations)))
 
 
 def covariance(points: F64) -> F64:

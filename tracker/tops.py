@@ -12,15 +12,12 @@ objects of one height pressed flush together: they stay one.
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 from scipy import ndimage
 
-from tofcut._types import F64
+from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
-from tofcut.tracker import kernels
-
-B = npt.NDArray[np.bool_]
-I32 = npt.NDArray[np.int32]
+from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 
 BASELINE = 4
 """Pixels between the two points whose height and spacing give the slope: over one pixel the
@@ -50,8 +47,8 @@ def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     where = body & np.isfinite(xyz[..., 2])
     if not where.any():
         return where
-    steep, *ratios = kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
-    if any(r.size and kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
+    steep, *ratios = tops_kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    if any(r.size and stats_kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
         return None
     up: B = where & ~steep
     return up
@@ -65,11 +62,11 @@ def split_by_tops(
     those tops: each pixel to the nearest in the image (a side face to the top it rises to
     or falls from). Pieces with one top, or tops at one height (one object's top broken up
     by noise), are kept whole."""
-    tops = kernels.label_pieces(up & (pieces > 0))
+    tops = components_kernels.label_pieces(up & (pieces > 0))
     n = int(tops.max())
     if n < 2:
         return pieces
-    size, height, noise2, home = kernels.top_stats(
+    size, height, noise2, home = tops_kernels.top_stats(
         tops, n, pieces, xyz, noise, belt.origin, belt.normal
     )
     big = size >= min_pixels
@@ -99,7 +96,7 @@ def split_by_tops(
         relabel[own] = label + 1 + np.arange(own.size)
         label += own.size
         out[region] = relabel[tops[rows, cols][region]]
-    # number the pieces 1..m in order of first appearance, as `kernels.label_pieces` does
+    # number the pieces 1..m in order of first appearance, as `label_pieces` does
     _, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
     rank = np.empty(first.size, np.int64)
     rank[np.argsort(first)] = np.arange(first.size)
@@ -109,7 +106,7 @@ def split_by_tops(
 
 
 def one_object(
-    labels: npt.NDArray[np.uint16], xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
+    labels: U16, xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
 ) -> list[tuple[int, int]]:
     """Pairs of labels (smaller first) whose masks meet along a seam where most neighbours
     across it are within `joined_m` in 3D (one surface going on, no step) and which do not
@@ -118,8 +115,8 @@ def one_object(
     pairs: dict[tuple[int, int], list[int]] = {}
     seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
     h, w = labels.shape
-    for dv, du in ((0, 1), (1, 0)):
-        first, second = np.s_[: h - dv, : w - du], np.s_[dv:, du:]
+    for k in (0, 1):  # right, down
+        (dv, du), (first, second) = OFFSETS[k], pair_slices((h, w), k)
         a, b = labels[first], labels[second]
         meet = (a != b) & (a > 0) & (b > 0)
         if not meet.any():
@@ -159,9 +156,7 @@ def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
     return float(np.median(belt.height(xyz[top])))
 
 
-def _convex(
-    labels: npt.NDArray[np.uint16], xyz: F64, seam: list[tuple[int, int, int, int]]
-) -> bool:
+def _convex(labels: U16, xyz: F64, seam: list[tuple[int, int, int, int]]) -> bool:
     """Whether two masks meet at a convex edge along `seam` (pairs of neighbouring pixels,
     one in each): the convexity criterion of locally convex connected patches (Stein et al.,
     in PCL), (n₁ − n₂)·(c₁ − c₂) ≥ 0 for the normals and centroids of each side's surface

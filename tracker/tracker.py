@@ -1,277 +1,54 @@
-"""The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`.
+"""The multi-object tracker: `Tracker.update(frame) -> TrackedFrame`, the per-frame step.
 
 Each frame: every track predicts its 3D position (constant velocity; unseen, at the belt's
-pace); all tracks and the background then compete for the pixels in one Potts energy
-(α-expansion, `tofcut.tracker.multicut`) whose data term is the paper's eq. (6): a pixel's
-cost for track k grows with its 3D distance from the track's prediction, measured in the
-track's own shape (so a person and a box are both "near" over their own extent) and from
+pace: `tofcut.tracker.live_track`); all tracks and the background then compete for the
+pixels in one Potts energy (`tofcut.tracker.cut`) whose data term is the paper's eq. (6): a
+pixel's cost for track k grows with its 3D distance from the track's prediction, measured in
+the track's own shape (so a person and a box are both "near" over their own extent) and from
 its predicted surface (so two touching objects are told apart), and its cost for the
-background with how far it stands out in front of the empty-scene range model. Pixels no
-track can win whatever their neighbours do are fixed to the background before the cut, so
-the graph holds only the pixels that matter. What stands out and no track can claim, two
-frames running, becomes a new track. Rigid objects on a belt: a track holding two touching
-surfaces (a step apart, or two tops at different heights: `tofcut.tracker.tops`) for a few
-frames has them dealt out again (two objects that came into view as one), two tracks that
-meet at a convex edge with no step are faces of one object and become one, and a track that
-stays put while the belt runs becomes scenery. Each pixel's range noise
-(`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
-(`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
-holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
+background with how far it stands out in front of the empty-scene range model
+(`tofcut.tracker.background`). The tracks are then measured from their masks, and what
+stands out and no track can claim, two frames running, becomes a new track
+(`tofcut.tracker.roster`, on the pieces of what stands out: `tofcut.tracker.pieces`). Rigid
+objects on a belt: a track holding two touching surfaces (a step apart, or two tops at
+different heights: `tofcut.tracker.tops`) for a few frames has them dealt out again (two
+objects that came into view as one), two tracks that meet at a convex edge with no step are
+faces of one object and become one, and a track that stays put while the belt runs becomes
+scenery. Each pixel's range noise (`tofcut.tracker.noise`) scales what counts as near on
+far, dark targets. The belt is given (`Tracker(belt=...)`) or set when it becomes known
+(`tracker.belt = ...`, as the run's belt holder does with a belt found from the frames,
+`tofcut.tracker.belt_finder`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
-import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
-from scipy import ndimage
-from scipy.optimize import linear_sum_assignment
 
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import kernels, stats
-from tofcut.tracker.background import (
-    MEDIAN_NOISE_SHARE,
-    BackgroundModel,
-    BackgroundParams,
-    on_belt_height,
-    standing_regions,
-)
+from tofcut.tracker import compiled
+from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.motion import ConstantVelocity, MotionParams
-from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tops import facing_up, one_object, split_by_tops
-from tofcut.tracker.tracks import Track, TrackedFrame
+from tofcut.tracker.params import TrackerParams
+from tofcut.tracker.pieces import Pieces
+from tofcut.tracker.roster import Roster, Seed
+from tofcut.tracker.tracks import TrackedFrame
 
-B = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
-I32 = npt.NDArray[np.int32]
-
-SHAPE_FLOOR_M = 0.01
-"""No track's shape is thinner than this (1σ) in any direction."""
-MIN_PIECE = 5
-"""Pieces smaller than this are noise, not more of an object coming into view."""
-USUAL_MEMORY = 0.995
-"""Per frame, how much of its largest view a track's usual size keeps (about 4 s at 50 fps)."""
-SQRT2 = math.sqrt(2.0)
-CEILING_MARGIN = 1e-6
-"""Slack on the cost a label may have and still win a pixel, against rounding."""
-
-
-@dataclass(frozen=True)
-class TrackerParams:
-    """Everything the tracker's behaviour depends on, with the defaults it was built with."""
-
-    background: BackgroundParams = field(default_factory=BackgroundParams)
-    motion: MotionParams = field(default_factory=MotionParams)
-    beta: float = 2.5
-    """Weight of the 3D distance penalty (eq. 6), in the track's shape: (D−µ)ᵀΣ⁻¹(D−µ)."""
-    object_cost: float = 8.0
-    """Cost of any pixel belonging to an object: what the pixel's evidence must outweigh."""
-    deadband: float = 1.0
-    """Nearness (in noise sigmas) that costs the background nothing: plain sensor noise."""
-    background_cap: float = 40.0
-    """Most a pixel can cost the background, however far in front it stands."""
-    unknown_cost: float = 30.0
-    """Background cost where the empty scene is not known yet (a seeded target's pixels)."""
-    smoothness: float = 0.8
-    """Potts weight λ between neighbours at the same 3D place."""
-    smoothness_sigma_m: float = 0.02
-    """Neighbours this far apart in 3D are tied by λ·e^(−1/2): eq. (7) in the Potts term."""
-    confirm_frames: int = 2
-    """Frames a new region must persist before it becomes a track."""
-    min_pixels: int = 30
-    """Smaller regions are noise, not objects."""
-    connect_m: float = 0.03
-    """Neighbours farther apart than this in 3D belong to different surfaces."""
-    joined_m: float = 0.02
-    """A piece beside an object coming into view is more of it where most of the neighbours
-    across their contact are this near in 3D: a box's faces meet edge to edge, and another
-    box beside it stands a step apart."""
-    gate_m: float = 0.08
-    """A region seen again within this distance (metres) is the same candidate."""
-    max_hidden_s: float = 2.0
-    """A hidden track is predicted this long before it ends."""
-    still_s: float = 2.0
-    """A track seen within `gate_m` of one place this long while the belt would have carried
-    it twice that far is part of the machine (a gantry, a guide): it becomes scenery."""
-    whole_fraction: float = 0.85
-    """A view within this share of the track's usual size (either way) shows the whole
-    object, and is measured; others are partial (occlusion) or tainted."""
-    keep_clear_m: float = 0.15
-    """Pixels this near a track's surface are not learned as scenery: they are likely parts
-    of it the cut missed (a target standing in view from the first frame, its feet)."""
-    seed_radius_m: float = 1.0
-    """A seeded target is what lies within this distance of its seed, connected to it in
-    the image."""
-    surface_weight: float = 0.2
-    """Weight of the distance from the track's predicted surface, (d/s)², added to the
-    shape's: the shape bounds an object's extent, the surface tells two neighbours apart."""
-    surface_sigma_m: float = 0.015
-    """How far (1σ) an object's surface may stray from where it was predicted, per frame."""
-    cloud_points: int = 400
-    """Points kept of each track's surface for that distance (a fixed subsample)."""
-    split_share: float = 0.2
-    """A track whose mask holds two surfaces (apart by `connect_m` steps), the smaller at
-    least this share of it or `split_pixels`, holds two objects..."""
-    split_pixels: int = 100
-    """...(a box coming into view beside a bigger one is a small share of their mask)..."""
-    split_frames: int = 3
-    """...when it does so this many frames running: the surfaces are then dealt out again."""
-    rigid: bool = True
-    """Whether the targets are rigid (boxes and parts on a line: a view is measured only when
-    it shows the whole object, and touching surfaces a step apart are different objects) or
-    may bend (a walking person: every view is measured, and what stands out beside it is a
-    limb). A property of the targets, chosen by the user: not inferred from the belt."""
-
-    def __post_init__(self) -> None:
-        positive = {
-            "beta": self.beta,
-            "object_cost": self.object_cost,
-            "smoothness_sigma_m": self.smoothness_sigma_m,
-            "gate_m": self.gate_m,
-            "max_hidden_s": self.max_hidden_s,
-            "still_s": self.still_s,
-            "seed_radius_m": self.seed_radius_m,
-            "keep_clear_m": self.keep_clear_m,
-            "surface_sigma_m": self.surface_sigma_m,
-            "joined_m": self.joined_m,
-        }
-        for name, value in positive.items():
-            if not value > 0:
-                raise SegmentError(f"TrackerParams.{name} must be positive, got {value}")
-        if self.cloud_points < 1:
-            raise SegmentError("cloud_points must be at least 1")
-        if self.smoothness < 0 or self.deadband < 0 or self.surface_weight < 0:
-            raise SegmentError("smoothness, deadband and surface_weight must not be negative")
-        if self.background_cap <= self.object_cost:
-            raise SegmentError("background_cap must exceed object_cost, or nothing is ever found")
-        if not 0.0 < self.split_share <= 0.5 or self.split_frames < 1 or self.split_pixels < 1:
-            raise SegmentError(
-                "split_share must be in (0, 0.5], split_frames and split_pixels at least 1"
-            )
-        if self.confirm_frames < 1 or self.min_pixels < 1:
-            raise SegmentError("confirm_frames and min_pixels must be at least 1")
-        if not 0.0 < self.whole_fraction <= 1.0:
-            raise SegmentError("whole_fraction must be in (0, 1]")
-
-
-@dataclass(eq=False)
-class _Live:
-    """A track's state between frames."""
-
-    id: int
-    filter: ConstantVelocity
-    shape: F64
-    """3×3 covariance of the object's points: its size and orientation."""
-    cloud: F64
-    """(N, 3) a subsample of the object's surface, where it is predicted to be now."""
-    usual_pixels: float = 0.0
-    """The object's size in pixels when seen whole (slowly forgetting the largest view)."""
-    measured: bool = False
-    """Whether the last frame measured the track (a whole, untainted view)."""
-    hidden_s: float = 0.0
-    hidden_frames: int = 0
-    split_frames: int = 0
-    """Frames running in which the track's mask held two surfaces."""
-    anchor: F64 | None = None
-    """Where the track has been seen staying, and for how long (`still_s`)."""
-    still_s: float = 0.0
-    seed: F64 | None = None
-    """A seeded target's seed point, from its centroid."""
-    last: Track | None = None
-
-
-@dataclass(eq=False)
-class _Candidate:
-    centroid: F64
-    seen: int = 1
-
-
-_EIGHT = np.ones((3, 3), bool)
-_NONE = np.zeros((0, 0), bool)
-_NO_POINTS = np.zeros((0, 3))
-
-
-def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
-    """Whether a box (a mask's bounding slices) touches the edge of the image."""
-    rows, cols = box
-    return bool(
-        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
-    )
-
-
-def _touching_pieces(
-    labels: npt.NDArray[np.uint16], pieces: npt.NDArray[np.int32], reach: int
-) -> dict[int, npt.NDArray[np.int32]]:
-    """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
-    its mask: `pieces[binary_dilation(labels == id, _EIGHT, reach)]`, for all tracks at
-    once."""
-    h, w = labels.shape
-    found = []
-    for dv in range(-reach, reach + 1):
-        for du in range(-reach, reach + 1):
-            here = labels[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)]
-            there = pieces[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
-            both = (here > 0) & (there > 0)
-            if both.any():
-                found.append(here[both].astype(np.int64) << 32 | there[both].astype(np.int64))
-    if not found:
-        return {}
-    pairs = np.unique(np.concatenate(found))
-    ids, rows = np.unique(pairs >> 32, return_index=True)
-    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
-    return dict(zip(ids.tolist(), groups, strict=True))
-
-
-def _subsample(points: F64, n: int) -> F64:
-    """At most n of the points, evenly spread through the array (deterministic)."""
-    if len(points) <= n:
-        return points
-    return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
-
-
-@functools.lru_cache(maxsize=4)
-def _floor_cov(floor_m: float) -> F64:
-    """`np.eye(3) * floor_m**2`, made once (read-only)."""
-    out = np.eye(3) * floor_m**2
-    out.flags.writeable = False
-    return out
-
-
-@functools.lru_cache(maxsize=4)
-def _no_spread(shape: tuple[int, int]) -> F64:
-    """`np.zeros(shape)`, made once (never written to)."""
-    return np.zeros(shape)
-
-
-def _shape_of(points: F64, floor_m: float, belt: BeltGeometry | None = None) -> F64:
-    """Covariance of a point cloud, kept from collapsing in thin directions. On a belt an
-    object reaches down to the belt, though the camera sees mostly its top: the spread
-    along the belt's normal is at least that of a solid from the belt to its top."""
-    cov = stats.covariance(points) if len(points) > 3 else np.zeros((3, 3))
-    cov = cov + _floor_cov(floor_m)
-    if belt is not None and len(points):
-        n = belt.normal
-        top = stats.percentile((points - belt.point) @ n, 90)
-        missing = top * top / 3.0 - float(n @ cov @ n)
-        if missing > 0:
-            cov = cov + missing * np.outer(n, n)
-    return np.asarray(cov)
+__all__ = ["Tracker", "TrackerParams"]
 
 
 class Tracker:
     """Frames in, tracks out. Feed every frame in order with `update`."""
 
     background_model: type[BackgroundModel] = BackgroundModel
+    cut_model: type[JointCut] = JointCut
+    pieces_model: type[Pieces] = Pieces
 
     def __init__(
         self, params: TrackerParams | None = None, belt: BeltGeometry | None = None
@@ -281,21 +58,14 @@ class Tracker:
         self._belt_laid = False
         """Whether the belt has been put under what stood on it while the scenery was learned."""
         self.background: BackgroundModel | None = None
-        self._tracks: list[_Live] = []
-        self._candidates: list[_Candidate] = []
-        self._seeds: list[tuple[tuple[int, int] | None, F64 | None]] = []
-        self._next_id = 1
         self._last_time_us: int | None = None
-        self._joining: dict[tuple[int, int], int] = {}
-        """Pairs of tracks seen as faces of one object, and for how many frames running."""
-        self._sorted: dict[int, tuple[F64, F64, int]] = {}
-        """Per track id: its cloud, arranged for `kernels.track_distances`, and the axis."""
-        kernels.warm_up()
-        p = self.params
-        self._reach_per_sigma = math.sqrt(p.background_cap / max(p.surface_weight, 1e-12))
-        """Farthest a track's surface can be from a point it could still win, in its spread."""
-        self._most_ties = 2 * p.smoothness * float(kernels.FACTORS.sum())
-        """The most a pixel's ties can add up to (all eight neighbours at its place)."""
+        self.cut = self.cut_model(self.params)
+        """The joint cut of all tracks (`tofcut.tracker.cut`)."""
+        self.pieces = self.pieces_model(self.params)
+        """What stands out, in pieces (`tofcut.tracker.pieces`)."""
+        self.roster = Roster(self.params, self.cut, self.pieces)
+        """The live tracks, measured and created (`tofcut.tracker.roster`)."""
+        compiled.warm_up()
 
     @property
     def belt(self) -> BeltGeometry | None:
@@ -320,7 +90,7 @@ class Tracker:
             point = np.asarray(point, float)
             if point.shape != (3,) or not np.isfinite(point).all():
                 raise SegmentError(f"a target point must be three finite numbers, got {point!r}")
-        self._seeds.append((pixel, point))
+        self.roster.add_seed(Seed(pixel, point))
 
     def update(self, frame: Frame, prior: VelocityPrior | None = None) -> TrackedFrame:
         """Track one frame; `prior` is the belt's velocity now, when known."""
@@ -334,34 +104,26 @@ class Tracker:
             dt = max(0.0, (frame.device_time_us - self._last_time_us) / 1e6)
         self._last_time_us = frame.device_time_us
         noise = range_noise(frame, p.background.min_sigma_m)
-        born = self._take_seeds(frame)
-        for t in self._tracks:
-            before = t.filter.position
-            t.filter.predict(dt)
-            if prior is not None and not t.measured:
-                # unseen, an object keeps the belt's pace; seen, its own motion decides
-                # (not everything in view rides the belt)
-                t.filter.follow_belt(prior)
-            shift = t.filter.position - before
-            moved = t.cloud + shift
-            kept = self._sorted.get(t.id)
-            if kept is not None and kept[0] is t.cloud:
-                # a surface moved as a whole keeps its arrangement: move that along too
-                self._sorted[t.id] = (moved, kept[1] + shift, kept[2])
-            t.cloud = moved
+        born = self.roster.take_seeds(frame, self.belt)
+        for t in self.roster.tracks:
+            t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
-        labels = self._segment(frame, noise) if ready else self._grown(frame)
-        found, ended = self._measure(frame, labels, dt, noise)
-        born += found
+        labels = (
+            self.cut.labels(frame, noise, self.roster.tracks, self.background)
+            if ready
+            else self.roster.grown(frame)
+        )
+        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt)
+        born += measured.born
+        ended = list(measured.ended)
         if ready and prior is not None:
-            ended += self._to_scenery(frame, labels, prior, dt, noise)
-        for gone in ended:
-            self._sorted.pop(gone, None)
+            ended += self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+        occupied = self.roster.points()
         if ready:
-            self.background.update(frame, labels == 0, noise, self._track_points(), p.keep_clear_m)
+            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m)
         else:
-            self.background.learn(frame, noise, self._track_points(), p.keep_clear_m)
+            self.background.learn(frame, noise, occupied, p.keep_clear_m)
         if not self._belt_laid and self.background.ready and self.belt is not None:
             # what stood on the belt while the scenery was learned is not scenery: the
             # belt goes under it, once the scenery and the belt are both known
@@ -369,581 +131,8 @@ class Tracker:
             self._belt_laid = True
         if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
             self.background.hold_belt(frame, self.belt, noise)
-        out = tuple(t.last for t in self._tracks if t.last is not None)
+        out = tuple(t.last for t in self.roster.tracks if t.last is not None)
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
-
-    def _to_scenery(
-        self,
-        frame: Frame,
-        labels: npt.NDArray[np.uint16],
-        prior: VelocityPrior,
-        dt: float,
-        noise: F64,
-    ) -> list[int]:
-        """End the tracks that stay put while the belt runs, their pixels becoming scenery
-        (`still_s`); their ids. Changes `labels`."""
-        p = self.params
-        bg = self.background
-        assert bg is not None
-        runs = prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m
-        ended = []
-        for t in list(self._tracks):
-            pos = t.filter.position
-            if not (runs and t.measured):
-                t.anchor, t.still_s = None, 0.0
-                continue
-            if t.anchor is None or np.linalg.norm(pos - t.anchor) > p.gate_m:
-                t.anchor, t.still_s = pos, 0.0
-                continue
-            t.still_s += dt
-            if t.still_s > p.still_s:
-                mask = labels == t.id
-                bg.absorb(frame, mask, noise)
-                labels[mask] = 0
-                self._tracks.remove(t)
-                ended.append(t.id)
-        return ended
-
-    # --- seeds ----------------------------------------------------------------------------
-
-    def _take_seeds(self, frame: Frame) -> list[int]:
-        """Start the targets given by the user, each as the region round its seed
-        (`_region`), so it is followed whole from the first frame."""
-        born = []
-        h, w = frame.shape
-        for pixel, point in self._seeds:
-            if pixel is None:
-                assert point is not None
-                v, u = _nearest_pixel(frame, point)
-            else:
-                u, v = pixel
-                if not (0 <= u < w and 0 <= v < h):
-                    raise SegmentError(f"seed pixel {pixel} is outside the {w}x{h} frame")
-                if not frame.valid[v, u]:
-                    raise SegmentError(f"seed pixel {pixel} is not valid in this frame")
-            seed = frame.xyz[v, u]
-            pts = frame.xyz[self._region(frame, seed)]
-            born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
-            self._tracks[-1].seed = seed - self._tracks[-1].filter.position
-        self._seeds.clear()
-        return born
-
-    def _region(self, frame: Frame, centre: F64) -> B:
-        """A seeded target: the pixels within `seed_radius_m` of the 3D point `centre`
-        connected in the image to the one nearest it (the paper's µ_d and its 3D distance:
-        a body, an arm in front of it and the legs below it, but not the floor and walls
-        beyond that distance)."""
-        v, u = _nearest_pixel(frame, centre)
-        ball = frame.valid & (
-            np.linalg.norm(frame.xyz - centre, axis=-1) < self.params.seed_radius_m
-        )
-        ball[v, u] = True
-        parts, _ = ndimage.label(ball, _EIGHT)
-        region: B = parts == parts[v, u]
-        return region
-
-    def _grown(self, frame: Frame) -> npt.NDArray[np.uint16]:
-        """Labels while the scenery is being learned: each seeded track is the region round
-        its seed, moved on with the track (a cut needs the scenery; pixels left out of the
-        target now would be learned as scenery)."""
-        labels = np.zeros(frame.shape, np.uint16)
-        for t in self._tracks:
-            if t.seed is not None:
-                region = self._region(frame, t.filter.position + t.seed)
-                labels[region & (labels == 0)] = t.id
-        return labels
-
-    def _track_points(self) -> F64:
-        """(N, 3) every track's predicted surface points."""
-        return np.concatenate([t.cloud for t in self._tracks] + [np.zeros((0, 3))])
-
-    def _start(self, points: F64, shape: F64, velocity: F64 | None = None) -> int:
-        motion = ConstantVelocity(points.mean(axis=0), self.params.motion, velocity)
-        track = _Live(self._next_id, motion, shape, _subsample(points, self.params.cloud_points))
-        self._next_id += 1
-        self._tracks.append(track)
-        return track.id
-
-    # --- the cut --------------------------------------------------------------------------
-
-    def _background_cost(self, frame: Frame) -> F64:
-        p = self.params
-        bg = self.background
-        assert bg is not None
-        if not bg.ready:
-            return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame)
-        cost: F64 = kernels.background_cost(
-            bg.range, sigma, bg.known, bg.range - nearer, frame.valid, p.deadband,
-            p.background_cap, p.unknown_cost,
-        )  # fmt: skip
-        return cost
-
-    def _segment(self, frame: Frame, noise: F64) -> npt.NDArray[np.uint16]:
-        """Labels (0 or a track id) of every pixel: the joint cut of all tracks.
-
-        Before the cut, pixels are fixed to the background where no labelling of their
-        neighbours could make an object label pay (object cost minus background cost above
-        the sum of the pixel's ties), and so are runs of invalid pixels (no data cost either
-        way) that touch no pixel left free; the minimum over the rest is the minimum of the
-        whole frame. A track's distance from a pixel that it could not win even at its
-        shape's distance alone is not measured (it costs inf) unless the cut needs it.
-        """
-        p = self.params
-        h, w = frame.shape
-        labels = np.zeros((h, w), np.uint16)
-        if not self._tracks:
-            return labels
-        valid = frame.valid
-        u0 = self._background_cost(frame)
-        u0[~valid] = 0.0
-        # ties only where they can matter: where the pixel's own ties could free it, and
-        # around invalid pixels (which a run of them may free)
-        near = ~valid | (p.object_cost - u0 <= self._most_ties + CEILING_MARGIN)
-        exps = kernels.tie_exponents(frame.xyz, valid, near, 2 * p.smoothness_sigma_m**2)
-        wt, total = kernels.tie_weights(np.exp(exps), valid, near, p.smoothness)
-        free, rows, cols, points, at, ceiling = kernels.free_pixels(
-            valid, u0, total, frame.xyz, noise, p.object_cost
-        )
-        if not rows.size:
-            return labels
-        # the 3D distance term can only add cost: now fix what no track can win
-        distance, floor = self._distances_from(self._tracks, points, at, ceiling)
-        cost = kernels.object_costs(distance, p.object_cost, p.beta, u0, total, rows, cols, free)
-        if not free.any():
-            return labels
-        if not valid.all():
-            runs, _ = ndimage.label(free | ~valid, structure=_EIGHT)
-            keep = np.unique(runs[free])
-            free |= ~valid & np.isin(runs, keep[keep > 0])
-        # invalid pixels have no data cost either way; where a track's surface was not
-        # measured, `least` holds its cost from the shape alone
-        index, *nodes, unary, least, ties = kernels.cut_nodes(
-            free, rows, cols, u0, total, cost, floor
-        )
-        where = (nodes[0], nodes[1])  # the nodes' pixels
-        kernels.add_fixed_ties(unary, index, wt, where[0], where[1])
-
-        def measure(tracks: I64, nodes: I64) -> None:
-            # A node never takes a label that costs more than its ties above every label
-            # it could hold: it would do better back with that one whatever its neighbours
-            # hold; such a label's cost decides no cut (it may stay inf). Others are made
-            # exact, until the labels left are all of that kind.
-            while True:
-                unmeasured = ~np.isnan(least[tracks - 1, nodes])
-                # the labels a node may hold: exact and finite (an inf one never is)
-                held = ~unmeasured & np.isfinite(unary[tracks, nodes])
-                top = unary[0].copy()
-                np.maximum.at(top, nodes[held], unary[tracks[held], nodes[held]])
-                need = unmeasured.copy()
-                at = nodes[unmeasured]
-                need[unmeasured] = (
-                    least[tracks[unmeasured] - 1, at] <= top[at] + ties[at] + CEILING_MARGIN
-                )
-                if not need.any():
-                    return
-                for label in np.unique(tracks[need]):
-                    at = nodes[need & (tracks == label)]
-                    v, u = where[0][at], where[1][at]
-                    one = [self._tracks[label - 1]]
-                    value = (
-                        p.object_cost
-                        + p.beta * self._distances_from(one, frame.xyz[v, u], noise[v, u])[0][0]
-                    )
-                    unary[label, at] = kernels.add_fixed_ties_at(value, index, wt, v, u)
-                    least[label - 1, at] = np.nan
-
-        ei, ej, ew = kernels.free_edges(index, wt, where[0], where[1])
-        chosen = _solve_by_parts(unary, ei, ej, ew, ties, measure)
-        ids = np.array([0] + [t.id for t in self._tracks], np.uint16)
-        labels[where] = ids[chosen]
-        return labels
-
-    def _distances(self, points: F64, noise: F64) -> F64:
-        """(tracks, N) each point's distance cost from each track's prediction: squared
-        Mahalanobis distance in the track's shape, plus the squared distance from its
-        predicted surface in units of `surface_sigma_m`, or of the noise of the difference
-        between a point and the surface where that is more (`noise`, each point's range
-        noise; inf beyond any track's reach)."""
-        return self._distances_from(self._tracks, points, noise)[0]
-
-    def _distances_from(
-        self, tracks: list[_Live], points: F64, noise: F64, ceiling: F64 | None = None
-    ) -> tuple[F64, F64]:
-        """`_distances` from some tracks; given a `ceiling` per point (the most a label may
-        cost there and still win it), the surface is only measured where the shape's
-        distance alone leaves the cost below it: elsewhere the distance is inf, and the
-        second array holds the cost from the shape alone (nan where measured)."""
-        p = self.params
-        if ceiling is None:
-            ceiling = np.full(len(points), np.inf)
-        clouds, starts, axes = self._surfaces(tracks)
-        spread = np.maximum(p.surface_sigma_m, SQRT2 * noise)
-        out: tuple[F64, F64] = kernels.track_distances(
-            points, ceiling + CEILING_MARGIN,
-            np.array([t.filter.position for t in tracks]).reshape(-1, 3),
-            np.linalg.inv(np.array([t.shape for t in tracks]).reshape(-1, 3, 3)),
-            clouds, starts, axes, p.object_cost, p.beta, p.surface_weight, spread,
-            spread.max(initial=0.0) * self._reach_per_sigma,
-        )  # fmt: skip
-        return out
-
-    def _surfaces(self, tracks: list[_Live]) -> tuple[F64, I64, I64]:
-        """The tracks' surfaces as `kernels.track_distances` takes them: all the clouds in
-        one array, each arranged by `kernels.sort_surfaces`, where each starts, and the
-        axis each is sorted along (kept per track while its cloud stays the same)."""
-        stale = [
-            t for t in tracks if (kept := self._sorted.get(t.id)) is None or kept[0] is not t.cloud
-        ]
-        if stale:  # sorted all in one call
-            bounds = np.cumsum([0] + [len(t.cloud) for t in stale]).astype(np.int64)
-            cloud, axis = kernels.sort_surfaces(np.concatenate([t.cloud for t in stale]), bounds)
-            for k, t in enumerate(stale):
-                self._sorted[t.id] = (t.cloud, cloud[bounds[k] : bounds[k + 1]], int(axis[k]))
-            if len(stale) == len(tracks):  # all of them, in order
-                return cloud, bounds, axis
-        starts = np.cumsum([0] + [len(t.cloud) for t in tracks]).astype(np.int64)
-        if not tracks:
-            return _NO_POINTS, starts, np.zeros(0, np.int64)
-        clouds = np.concatenate([self._sorted[t.id][1] for t in tracks])
-        return clouds, starts, np.array([self._sorted[t.id][2] for t in tracks], np.int64)
-
-    # --- measuring tracks and finding new objects ------------------------------------------
-
-    def _loose(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64
-    ) -> npt.NDArray[np.int32]:
-        """Pieces of surface that stand out of the scenery and no track took, split where
-        neighbours are farther apart in 3D than `connect_m` (touching objects of different
-        heights come apart; one object's pixels stay together)."""
-        bg = self.background
-        assert bg is not None
-        q = bg.params
-        body = kernels.standing_out(
-            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
-            q.min_height_m,
-        )  # fmt: skip
-        body |= standing_regions(
-            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
-        )
-        if self.params.rigid and self.belt is not None:
-            body[body] = on_belt_height(frame.xyz[body], self.belt)
-        # a step of `connect_m` parts touching objects of different heights, or three
-        # times the noise where that is more: a surface in loud noise is not broken into
-        # specks by steps within the noise
-        return self._pieces(frame, body, noise)
-
-    def _pieces(
-        self, frame: Frame, body: B, noise: F64, step_noise: bool = True
-    ) -> npt.NDArray[np.int32]:
-        """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
-        `connect_m`, or, given the range noise, than three times the noise of their
-        difference where that is more (a seed on a far, dark target); the pixel on the far
-        side of such a step is left out."""
-        xyz, rng, noise = _quietened(frame, body, noise, self.params.connect_m)
-        spread2 = 9.0 * noise**2 if step_noise else _no_spread(frame.shape)
-        body = kernels.cut_at_steps(body, xyz, rng, self.params.connect_m**2, spread2)
-        pieces: npt.NDArray[np.int32] = kernels.label_pieces(body)
-        return self._by_tops(xyz, body, pieces, noise)
-
-    def _by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64) -> I32:
-        """Rigid objects on a known belt: a piece holding two tops is two objects
-        (`tofcut.tracker.tops`); others as they are."""
-        if not self.params.rigid or self.belt is None or pieces.max() < 1:
-            return pieces
-        up = facing_up(body, xyz, noise, self.belt)
-        if up is None:
-            return pieces
-        return split_by_tops(pieces, up, xyz, noise, self.belt, self.params.min_pixels)
-
-    def _measure(
-        self, frame: Frame, labels: npt.NDArray[np.uint16], dt: float, noise: F64
-    ) -> tuple[list[int], list[int]]:
-        """Update every track from its mask, and look for new objects; (born, ended) ids."""
-        p = self.params
-        ended: list[int] = []
-        keep: list[_Live] = []
-        born = self._reconcile(frame, labels, noise)
-        ended += self._join(frame, labels, noise)
-        ready = self.background is not None and self.background.ready
-        pieces = self._loose(frame, labels, noise) if ready else None
-        # across a 3D step, what stands out lies past the seam the step leaves
-        seam = 1 if p.rigid else 2
-        touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
-        # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
-        corners, starts, held = kernels.label_points(
-            labels, frame.xyz, np.array([t.id for t in self._tracks], np.int64)
-        )
-        piece_boxes: list[tuple[slice, slice] | None] | None = None
-        for k, t in enumerate(self._tracks):
-            r0, r1, c0, c1 = corners[k].tolist()
-            box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
-            mask = labels[box] == t.id if box is not None else _NONE  # within the box
-            n = int(starts[k + 1] - starts[k])
-            if n >= p.min_pixels:
-                assert box is not None
-                pts = held[starts[k] : starts[k + 1]]
-                entering = _on_border(box, labels.shape)
-                if pieces is not None and t.id in touching:
-                    # what stands out right beside a track and goes on from its surface is
-                    # more of it: an object coming into view is bigger than its mask, one
-                    # first seen in part (a bag's rounded rim, a roll's far end) bigger than
-                    # its shape, and a person may have moved a limb where its prediction
-                    # did not reach
-                    whole_mask = np.zeros(labels.shape, bool)
-                    whole_mask[box] = mask
-                    if piece_boxes is None:
-                        piece_boxes = ndimage.find_objects(pieces)
-                    beside = self._continuing(
-                        frame, whole_mask, pieces, touching[t.id], piece_boxes
-                    )
-                    if beside.size:
-                        seen = whole_mask | np.isin(pieces, beside)
-                        pieces[seen] = 0
-                        labels[seen] = t.id
-                        box = _box_of(seen)
-                        pts = frame.xyz[seen]
-                m = len(pts)
-                usual = t.usual_pixels
-                # a partial view (occlusion) or a tainted one (something else taken in) is
-                # not measured: its centroid is off, so the track coasts on its prediction,
-                # and its shape and surface stay as last seen whole, moved on with it
-                whole = p.whole_fraction * usual <= m and (
-                    entering or m * p.whole_fraction <= usual
-                )
-                # a target that bends (a person) shows all of itself in every view
-                t.measured = usual == 0 or whole or not p.rigid
-                if t.measured:
-                    t.filter.correct(kernels.point_stats(pts)[0])  # pts.mean(axis=0)
-                    t.shape = 0.5 * t.shape + 0.5 * _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-                    t.cloud = _subsample(pts, p.cloud_points)
-                    t.usual_pixels = max(float(m), USUAL_MEMORY * usual)
-                t.hidden_s = 0.0
-                t.hidden_frames = 0
-                t.last = _seen(t, pts, box)
-            else:
-                if box is not None:
-                    labels[box][mask] = 0
-                t.measured = False
-                t.hidden_s += dt
-                t.hidden_frames += 1
-                if t.hidden_s > p.max_hidden_s or not self._in_view(frame, t):
-                    ended.append(t.id)
-                    continue
-                pos = t.filter.position
-                t.last = Track(
-                    t.id, pos, t.filter.velocity, pos, pos, (0, 0, 0, 0), 0,
-                    np.zeros((0, 3), np.float32), t.hidden_frames,
-                )  # fmt: skip
-            keep.append(t)
-        self._tracks = keep
-        if pieces is not None:
-            born += self._detect(frame, pieces, labels, noise)
-        return born, ended
-
-    def _join(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
-        """Rigid objects on a known belt: two tracks whose masks meet with no step between
-        them and no two tops at different heights (`tops.one_object`) for `split_frames`
-        frames running hold faces of one object (its side seen first, a rim, the far end
-        of a roll): the younger is handed to the older. Changes `labels`; the ids ended."""
-        p = self.params
-        if not p.rigid or self.belt is None or len(self._tracks) < 2:
-            self._joining = {}
-            return []
-        up = facing_up(labels > 0, frame.xyz, noise, self.belt)
-        pairs = one_object(labels, frame.xyz, up, self.belt, p.joined_m)
-        self._joining = {pair: self._joining.get(pair, 0) + 1 for pair in pairs}
-        ended: list[int] = []
-        for (older, younger), frames in sorted(self._joining.items()):
-            if frames < p.split_frames or older in ended or younger in ended:
-                continue
-            keep = next(t for t in self._tracks if t.id == older)
-            self._tracks = [t for t in self._tracks if t.id != younger]
-            labels[labels == younger] = older
-            ended.append(younger)
-            pts = frame.xyz[labels == older]
-            # what it holds now is a new view of it: its state starts again from this view
-            keep.filter = ConstantVelocity(pts.mean(axis=0), p.motion, keep.filter.velocity)
-            keep.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-            keep.cloud = _subsample(pts, p.cloud_points)
-            keep.usual_pixels = 0.0
-        self._joining = {k: v for k, v in self._joining.items() if not set(k) & set(ended)}
-        return ended
-
-    def _reconcile(self, frame: Frame, labels: npt.NDArray[np.uint16], noise: F64) -> list[int]:
-        """Deal the surfaces out again where a track has held two for `split_frames` frames
-        (two objects that came into view together, taken as one, or split along the wrong
-        line): each surface goes whole to one of the tracks holding it, most pixels kept in
-        place; a surface left over is a new track. Changes `labels`; the new tracks' ids."""
-        p = self.params
-        if not p.rigid or not self._tracks:
-            return []  # a person's limbs are not other people
-        pieces = self._pieces(frame, labels > 0, noise, step_noise=False)
-        n_pieces = int(pieces.max()) + 1
-        row = np.zeros(max(t.id for t in self._tracks) + 1, np.int64)
-        for k, t in enumerate(self._tracks):
-            row[t.id] = k + 1
-        held = kernels.held_pieces(labels, pieces, row, len(self._tracks) + 1, n_pieces)[1:]
-        held[:, 0] = 0
-        size = held.sum(axis=1)
-        big = (held >= p.min_pixels) & (
-            held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
-        )
-        splitting = []
-        for k, t in enumerate(self._tracks):
-            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
-            t.split_frames = t.split_frames + 1 if two else 0
-            if t.split_frames >= p.split_frames:
-                splitting.append(k)
-        if not splitting:
-            return []
-        surfaces = np.nonzero(big[splitting].any(axis=0))[0]
-        involved = np.nonzero((held[:, surfaces] >= p.min_pixels).any(axis=1))[0]
-        rows, cols = linear_sum_assignment(held[np.ix_(involved, surfaces)], maximize=True)
-        owner = dict(zip(surfaces[cols].tolist(), involved[rows].tolist(), strict=True))
-        # the surfaces' pixels are dealt out anew; elsewhere the cut's labels stand
-        dealt = np.isin(pieces, surfaces)
-        labels[dealt] = 0
-        born = []
-        for r in surfaces.tolist():
-            surface = pieces == r
-            if r in owner:
-                labels[surface] = self._tracks[owner[r]].id
-            else:
-                # it moved with the track that held most of it
-                carrier = self._tracks[int(np.argmax(held[:, r]))].filter.velocity
-                pts = frame.xyz[surface]
-                shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-                labels[surface] = self._start(pts, shape, carrier)
-                born.append(int(labels[surface][0]))
-        for k in involved.tolist():
-            t = self._tracks[k]
-            t.split_frames = 0
-            pts = frame.xyz[labels == t.id]
-            if len(pts) < p.min_pixels:
-                continue
-            # what it holds now is a new view of it: its state starts again from this view
-            velocity = t.filter.velocity
-            t.filter = ConstantVelocity(pts.mean(axis=0), p.motion, velocity)
-            t.shape = _shape_of(pts, SHAPE_FLOOR_M, self.belt)
-            t.cloud = _subsample(pts, p.cloud_points)
-            t.usual_pixels = 0.0
-        return born
-
-    def _in_view(self, frame: Frame, t: _Live) -> bool:
-        """Whether the predicted centroid still falls on the sensor."""
-        pos = t.filter.position
-        if pos[2] <= 0:
-            return False
-        # the sensor's field of view, from its corner pixels, in normalised coordinates
-        corners = frame.xyz[[0, 0, -1, -1], [0, -1, 0, -1]]
-        xs = corners[:, 0] / corners[:, 2]
-        ys = corners[:, 1] / corners[:, 2]
-        x, y = pos[0] / pos[2], pos[1] / pos[2]
-        return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
-
-    def _continuing(
-        self,
-        frame: Frame,
-        mask: B,
-        pieces: npt.NDArray[np.int32],
-        near: npt.NDArray[np.int32],
-        piece_boxes: list[tuple[slice, slice] | None],
-    ) -> npt.NDArray[np.int32]:
-        """Which pieces beside a track's `mask` are more of the same object (pieces smaller
-        than MIN_PIECE are noise): for rigid targets, those that go on from the mask's
-        surface without a 3D step (`joined_m`); for targets that bend, all (a limb).
-        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
-        keep = []
-        for r in near.tolist():
-            box = piece_boxes[r - 1]
-            assert box is not None
-            if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
-                continue
-            if self.params.rigid:
-                share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
-                if share < 0.5:
-                    continue
-            keep.append(r)
-        return np.array(keep, np.int32)
-
-    def _detect(
-        self,
-        frame: Frame,
-        pieces: npt.NDArray[np.int32],
-        labels: npt.NDArray[np.uint16],
-        noise: F64,
-    ) -> list[int]:
-        """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
-        row (within `gate_m`), a track. A piece most of which a track could claim is a
-        fringe of that track, not a new object."""
-        p = self.params
-        sizes = np.bincount(pieces.ravel())
-        claim = (p.background_cap - p.object_cost) / p.beta
-        found = []
-        for r in np.nonzero(sizes >= p.min_pixels)[0]:
-            if r == 0:
-                continue
-            piece = pieces == r
-            if not _solid(piece, p.min_pixels):
-                continue
-            pts = frame.xyz[piece]
-            centroid = pts.mean(axis=0)
-            if self._tracks and np.median(self._distances(pts, noise[piece]).min(axis=0)) < claim:
-                continue
-            found.append((centroid, pts, piece))
-        born = []
-        next_candidates = []
-        for centroid, pts, piece in found:
-            match = None
-            for c in self._candidates:
-                if np.linalg.norm(c.centroid - centroid) < p.gate_m:
-                    match = c
-                    break
-            if match is None:
-                next_candidates.append(_Candidate(centroid))
-                continue
-            self._candidates.remove(match)
-            match.seen += 1
-            match.centroid = centroid
-            if match.seen >= p.confirm_frames:
-                born.append(self._start(pts, _shape_of(pts, SHAPE_FLOOR_M, self.belt)))
-                t = self._tracks[-1]
-                labels[piece] = t.id
-                t.usual_pixels = float(len(pts))
-                t.last = _seen(t, pts, _box_of(piece))
-            else:
-                next_candidates.append(match)
-        self._candidates = next_candidates
-        return born
-
-
-def _solid(piece: B, min_pixels: int) -> bool:
-    """Whether a piece has a body: `min_pixels` / 2 pixels or more whose 3×3 neighbourhood is
-    all in it, or it is coming into view. A sliver along a depth edge (mixed pixels
-    flickering in front of the scenery, a rail's rim) has none; the narrowest object has."""
-    box = _box_of(piece)
-    if _on_border(box, piece.shape):
-        return True  # coming into view: a sliver of it first
-    core = ndimage.binary_erosion(piece[box], _EIGHT)
-    return int(np.count_nonzero(core)) * 2 >= min_pixels
-
-
-def _quietened(frame: Frame, body: B, noise: F64, step_m: float) -> tuple[F64, F64, F64]:
-    """The points, ranges and noise of `body` for finding its surfaces: where the range noise
-    is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
-    neighbours in `body` (a step between two objects stands out of that median's smaller
-    noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
-    loud = body & (noise * 3.0 >= step_m)
-    if not loud.any():
-        return frame.xyz, frame.range, noise
-    rng = kernels.median3_within(frame.range, body, loud)
-    moved = loud & (frame.range != 0)
-    xyz = frame.xyz.copy()
-    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
-    quiet = noise.copy()
-    quiet[loud] *= MEDIAN_NOISE_SHARE
-    return xyz, rng, quiet
 
 
 def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
@@ -963,97 +152,3 @@ def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
     rng = np.where(finite, frame.range, 0.0)
     xyz = np.where(finite[..., None], frame.xyz, 0.0)
     return dataclasses.replace(frame, range=rng, xyz=xyz, valid=frame.valid & finite)
-
-
-def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
-    """(v, u) of the valid pixel whose 3D point is nearest `point`."""
-    dist = np.linalg.norm(frame.xyz - point, axis=-1)
-    dist[~frame.valid] = np.inf
-    v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
-    return int(v), int(u)
-
-
-def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float) -> float:
-    """Of the pixel pairs where `a` meets `b` side by side (`b` within `box`), the share
-    whose 3D points are within `step_m` of each other (0 where they do not meet)."""
-    h, w = a.shape
-    rows = slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h))
-    cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
-    pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
-    meet = joined = 0
-    for one, other in ((np.s_[:, :-1], np.s_[:, 1:]), (np.s_[:-1, :], np.s_[1:, :])):
-        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
-        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
-        meet += gap.size
-        joined += int(np.count_nonzero(gap <= step_m))
-    return joined / meet if meet else 0.0
-
-
-def _box_of(mask: B) -> tuple[slice, slice]:
-    """The bounding slices (rows, columns) of a mask that is not empty."""
-    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
-    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
-
-
-def _seen(t: _Live, pts: F64, box: tuple[slice, slice]) -> Track:
-    """What is reported of a track seen this frame at `pts`, within `box` (rows, columns)."""
-    bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
-    centroid, lo, hi = kernels.point_stats(pts)
-    return Track(
-        t.id, centroid, t.filter.velocity, lo, hi, bbox, len(pts), pts.astype(np.float32),
-    )  # fmt: skip
-
-
-def _touching(pieces: npt.NDArray[np.int32], surfaces: I64, mask: B) -> bool:
-    """Whether the largest of these pieces meets another of them within the track's own
-    `mask` (across the seam a 3D step leaves, or across a side face between them that noise
-    breaks into specks): two objects side by side, not one seen either side of an occluder
-    (which parts the mask)."""
-    sizes = np.bincount(pieces.ravel())
-    first = surfaces[np.argmax(sizes[surfaces])]
-    parts, _ = ndimage.label(mask, _EIGHT)
-    home = np.bincount(parts[pieces == first]).argmax()
-    if home == 0:
-        return False
-    return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())
-
-
-def _solve_by_parts(
-    unary: F64, i: I64, j: I64, w: F64, ties: F64, measure: Callable[[I64, I64], None]
-) -> I64:
-    """Minimise the Potts energy part by part: nodes no edge joins are independent problems,
-    and in each part only the labels that could win some node there (its cost within the
-    node's total ties of the cheapest) take part. `measure(labels, nodes)` is given the
-    labels and nodes of the parts with more than two labels, before they are cut (their
-    costs may be inf where the label cannot win)."""
-    n = unary.shape[1]
-    # chosen: each node's cheapest label, right for every node without edges
-    # contenders: how many labels may win each part an edge joins (0 elsewhere)
-    part_of, order, bounds, edge_order, edge_bounds, chosen, can_win, contenders = (
-        kernels.split_parts(unary, i, j, ties)
-    )
-    local = np.empty(n, np.int64)
-    multi = [
-        (order[bounds[k] : bounds[k + 1]], edge_order[edge_bounds[k] : edge_bounds[k + 1]],
-         np.nonzero(can_win[:, k])[0])
-        for k in np.nonzero(contenders > 2)[0]
-    ]  # fmt: skip
-    # every label's costs exact wherever a cut of more than two labels may weigh them;
-    # with two, a cost left inf is one the track cannot win whatever the neighbours hold
-    if multi:
-        measure(
-            np.concatenate([np.repeat(lab[1:], part.size) for part, _, lab in multi]),
-            np.concatenate([np.tile(part, lab.size - 1) for part, _, lab in multi]),
-        )
-    for part, edges, labels in multi:
-        local[part] = np.arange(part.size)
-        problem = PottsProblem(unary[labels][:, part], local[i[edges]], local[j[edges]], w[edges])
-        chosen[part] = labels[solve_potts(problem)]
-    binary = contenders == 2
-    if binary.any():
-        # every part where one track meets the background: one exact cut for them all
-        nodes, track, pair, bi, bj, bw = kernels.binary_parts(
-            unary, i, j, w, part_of, order, edge_order, binary, can_win
-        )
-        chosen[nodes] = np.where(solve_binary(PottsProblem(pair, bi, bj, bw)) == 1, track, 0)
-    return chosen

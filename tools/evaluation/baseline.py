@@ -36,6 +36,7 @@ from tofcut._types import F64
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.frames import Frame
+from tofcut.tracker.stats import MAD_TO_SIGMA
 
 LEARN_FRAMES = 10
 RATE = 0.05
@@ -89,7 +90,7 @@ class EmptyScene:
             stack = np.array(self._learning)
             self.model = np.nanmedian(stack, axis=0)
             mad = np.nanmedian(np.abs(stack - self.model), axis=0)
-            self._spread = np.fmax(STAND_OUT_M, NOISE_SIGMAS * 1.4826 * mad)
+            self._spread = np.fmax(STAND_OUT_M, NOISE_SIGMAS * MAD_TO_SIGMA * mad)
             self._farther = np.zeros(seen.shape, np.int64)
             self._nearest = np.full(seen.shape, np.inf)
             return None

@@ -21,6 +21,7 @@ from tofcut.driver.frames import Frame
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.truth import FrameTruth
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 from tofcut.tracker.paper import energy as en
 from tofcut.tracker.paper.energy import energy_of
 from tofcut.tracker.paper.graphcut import Problem, solve_cropped
@@ -32,6 +33,7 @@ from tofcut.tracker.paper.segment import (
     estimate_model,
     segment,
 )
+from tofcut.tracker.stats import robust_sigma
 
 BOOL = npt.NDArray[np.bool_]
 U8 = npt.NDArray[np.uint8]
@@ -112,7 +114,7 @@ class BoundaryStats:
     weight_on_smooth: float
     """Share of that weight on edges whose D is below the inside's 90th percentile."""
     noise_mm: float
-    """Range noise on the object: 1.4826 × median |measured − true range| (a robust σ)."""
+    """Range noise on the object: the robust σ of measured − true range (`robust_sigma`)."""
     weight_at_bottom: float
     """Share of the true cut's weight on edges in the lowest tenth of the object's rows
     (where a standing object meets the floor)."""
@@ -151,8 +153,8 @@ def boundary_stats(name: str, frame: Frame, truth: FrameTruth, mask: BOOL) -> Bo
     rows = np.nonzero(mask.any(axis=1))[0]
     bottom = rows.max() - 0.1 * (rows.max() - rows.min())
     row_of = np.broadcast_to(np.arange(mask.shape[0])[:, None], mask.shape)
-    for k in range(len(en.OFFSETS)):
-        sp, sq = en.pair_slices(mask.shape, k)
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices(mask.shape, k)
         both = frame.valid[sp] & frame.valid[sq]
         d = np.sqrt(((frame.xyz[sp] - frame.xyz[sq]) ** 2).sum(axis=-1)) * 1e3
         cross = mask[sp] != mask[sq]
@@ -181,8 +183,8 @@ def boundary_stats(name: str, frame: Frame, truth: FrameTruth, mask: BOOL) -> Bo
 
 
 def _robust_sigma(error: npt.NDArray[np.float64], where: BOOL) -> float:
-    """1.4826 × the median absolute error over `where`, millimetres."""
-    return float(1.4826 * np.median(np.abs(error[where]))) * 1e3
+    """The robust σ of the error over `where` (`stats.robust_sigma`), millimetres."""
+    return robust_sigma(error[where]) * 1e3
 
 
 def _percentiles(values: npt.NDArray[np.float64]) -> tuple[float, float, float]:

@@ -31,8 +31,9 @@ import numpy as np
 import numpy.typing as npt
 
 from tofcut._types import F64
-from tofcut.tracker.kernels import number_sets, root
-from tofcut.tracker.paper.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
+from tofcut.tracker.components_kernels import number_sets, root
+from tofcut.tracker.neighbours import DIRECTIONS, DU, DV, OFFSETS
+from tofcut.tracker.paper.energy import edge_weight
 
 BOOL = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]

@@ -5,8 +5,9 @@ A labelling w: P → {0, 1} (1 = target) of an H×W frame costs
     E(w) = Σ_p cost1[p]·w_p + cost0[p]·(1 − w_p) + Σ_{p,q} weight[p,q]·[w_p ≠ w_q]
 
 over the 8-neighbour pairs. Pairwise weights are held as a (4, H, W) array: `weights[k, v, u]`
-is the weight of the edge from pixel (v, u) to (v, u) + OFFSETS[k] (zero where that falls
-outside the frame), so every undirected 8-neighbour edge appears exactly once.
+is the weight of the edge from pixel (v, u) to (v, u) + OFFSETS[k] (`tofcut.tracker.neighbours`;
+zero where that falls outside the frame), so every undirected 8-neighbour edge appears
+exactly once.
 
 Intensities enter the energies as 8-bit grey levels, g = 255·I / I_ref, with I_ref the 99th
 percentile of the frame's valid intensity: the scale of the images the paper (and Malcolm et
@@ -25,37 +26,12 @@ import numpy.typing as npt
 
 from tofcut._types import F64
 from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.neighbours import DIAGONAL, DU, DV, OFFSETS, pair_slices
 
 BOOL = npt.NDArray[np.bool_]
 
-OFFSETS: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (1, 1), (1, -1))
-"""(dv, du) of the four forward 8-neighbour directions: east, south, south-east, south-west."""
-
-DIRECTIONS: tuple[tuple[int, int], ...] = OFFSETS + tuple((-dv, -du) for dv, du in OFFSETS)
-"""All 8 neighbour directions: OFFSETS (forward), then their opposites (backward)."""
-DV = np.array([dv for dv, _ in DIRECTIONS], dtype=np.int64)
-DU = np.array([du for _, du in DIRECTIONS], dtype=np.int64)
-
-DIAGONAL = (False, False, True, True)
-"""Which of OFFSETS are diagonal (their pixel centres are √2 apart)."""
-
 GREY_PERCENTILE = 99.0
 """The intensity percentile mapped to grey level 255."""
-
-
-Region = tuple[slice, slice]
-
-
-def pair_slices(shape: tuple[int, int], k: int) -> tuple[Region, Region]:
-    """Slices (p, q) selecting every pixel p whose neighbour q = p + OFFSETS[k] is in frame."""
-    h, w = shape
-    dv, du = OFFSETS[k]
-    rows_p, rows_q = slice(0, h - dv), slice(dv, h)
-    if du >= 0:
-        cols_p, cols_q = slice(0, w - du), slice(du, w)
-    else:
-        cols_p, cols_q = slice(-du, w), slice(0, w + du)
-    return (rows_p, cols_p), (rows_q, cols_q)
 
 
 @numba.njit(cache=True, inline="always")

@@ -49,8 +49,9 @@ import numpy.typing as npt
 
 from tofcut._types import F64
 from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.neighbours import DIRECTIONS, DU, DV, OFFSETS
 from tofcut.tracker.paper.contraction import cut_merged, merged_nodes, min_cut
-from tofcut.tracker.paper.energy import DIRECTIONS, DU, DV, OFFSETS, edge_weight
+from tofcut.tracker.paper.energy import edge_weight
 
 BOOL = npt.NDArray[np.bool_]
 I64 = npt.NDArray[np.int64]

@@ -30,6 +30,7 @@ from tofcut._types import F64
 from tofcut.driver.frames import Frame
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.multicut import PottsProblem, solve_potts
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
 from tofcut.tracker.paper import energy as en
 from tofcut.tracker.paper.segment import (
     Energy,
@@ -120,8 +121,8 @@ def _edges(weights: F64) -> tuple[I64, I64, F64]:
     _, h, w = weights.shape
     index = np.arange(h * w).reshape(h, w)
     heads, tails, caps = [], [], []
-    for k in range(len(en.OFFSETS)):
-        sp, sq = en.pair_slices((h, w), k)
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices((h, w), k)
         keep = weights[k][sp] > 0
         heads.append(index[sp][keep])
         tails.append(index[sq][keep])

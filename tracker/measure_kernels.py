@@ -1,0 +1,88 @@
+"""Measuring tracks from their masks, compiled (see `tofcut.tracker.compiled`): each mask's
+box and points, their mean and extent, and how many pixels of each piece each track holds.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tofcut._types import F64, I32, I64, U16
+from tofcut.tracker.compiled import F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
+
+
+@kernel((U16_2D, F64_3D, I64_1D))
+def label_points(
+    labels: U16, xyz: F64, ids: I64
+) -> tuple[I64, I64, F64]:  # fmt: skip
+    """Each id's pixels in `labels`: (ids, 4) their box (first row, row past the last, first
+    column, column past the last, as `ndimage.find_objects`; 0s where none), where each
+    id's points start (ids + 1) in the (N, 3) 3D points of them all, each id's in
+    row-major order (`xyz[box][labels[box] == id]`)."""
+    h, w = labels.shape
+    top = 0
+    for k in range(ids.size):
+        top = max(top, ids[k])
+    slot = np.full(top + 1, -1, np.int64)
+    for k in range(ids.size):
+        slot[ids[k]] = k
+    boxes = np.zeros((ids.size, 4), np.int64)
+    starts = np.zeros(ids.size + 1, np.int64)
+    which = np.full((h, w), -1, np.int64)  # each pixel's id's index, for the second pass
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            k = slot[lab] if lab <= top else -1
+            if k < 0:
+                continue
+            which[v, u] = k
+            if starts[k + 1] == 0:
+                boxes[k, 0], boxes[k, 2] = v, u
+            boxes[k, 1] = v + 1
+            boxes[k, 2] = min(boxes[k, 2], u)
+            boxes[k, 3] = max(boxes[k, 3], u + 1)
+            starts[k + 1] += 1
+    for k in range(ids.size):
+        starts[k + 1] += starts[k]
+    points = np.empty((starts[-1], 3))
+    fill = starts[:-1].copy()
+    for v in range(h):
+        for u in range(w):
+            k = which[v, u]
+            if k < 0:
+                continue
+            points[fill[k], 0], points[fill[k], 1] = xyz[v, u, 0], xyz[v, u, 1]
+            points[fill[k], 2] = xyz[v, u, 2]
+            fill[k] += 1
+    return boxes, starts, points
+
+
+@kernel((F64_2D,))
+def point_stats(points: F64) -> tuple[F64, F64, F64]:
+    """`points.mean(axis=0)`, `.min(axis=0)` and `.max(axis=0)` of (N, 3) C-ordered points,
+    N ≥ 1, in one pass: numpy sums such an array's rows in order, then divides by N, and a
+    nan anywhere in a column is that column's min and max."""
+    total = np.zeros(3)
+    lo = points[0].copy()
+    hi = points[0].copy()
+    for n in range(points.shape[0]):
+        for a in range(3):
+            x = points[n, a]
+            total[a] += x
+            lo[a] = lo[a] if (lo[a] <= x or lo[a] != lo[a]) else x
+            hi[a] = hi[a] if (hi[a] >= x or hi[a] != hi[a]) else x
+    return total / points.shape[0], lo, hi
+
+
+@kernel((U16_2D, I32_2D, I64_1D, 1, 1))
+def held_pieces(
+    labels: U16, pieces: I32, row: I64, rows: int,
+    n_pieces: int,
+) -> I64:  # fmt: skip
+    """(rows, n_pieces) how many pixels of each piece each label holds, by the label's row
+    (`row[label]`): the bincount of row[labels]·n_pieces + pieces."""
+    out = np.zeros((rows, n_pieces), np.int64)
+    h, w = labels.shape
+    for v in range(h):
+        for u in range(w):
+            out[row[labels[v, u]], pieces[v, u]] += 1
+    return out

@@ -1,0 +1,125 @@
+"""What stands out, in pieces: the surfaces that measuring and finding tracks work on.
+
+A mask (what stands out of the scenery and no track took, or all the tracks' masks) is cut
+where neighbours are farther apart in 3D than `connect_m` (touching objects of different
+heights come apart; one object's pixels stay together), or, given the range noise, than three
+times the noise of their difference where that is more; in loud noise, on the median of each
+pixel's 3×3 neighbours within the mask. Rigid objects on a known belt: a piece holding two
+tops at different heights is two objects (`tofcut.tracker.tops`). The per-pixel loops are
+compiled (`pieces_kernels`, `components_kernels`).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+from tofcut._types import F64, I32, U16, B
+from tofcut.driver.belt import BeltGeometry
+from tofcut.driver.frames import Frame
+from tofcut.tracker import background_kernels, components_kernels, pieces_kernels, stats_kernels
+from tofcut.tracker.background import (
+    MEDIAN_NOISE_SHARE,
+    BackgroundModel,
+    on_belt_height,
+    standing_regions,
+)
+from tofcut.tracker.params import TrackerParams
+from tofcut.tracker.tops import facing_up, split_by_tops
+
+
+@dataclass(frozen=True, eq=False)
+class Quietened:
+    """A frame's points, ranges and range noise, quietened where loud (`quietened`)."""
+
+    xyz: F64
+    range: F64
+    noise: F64
+
+
+class Pieces:
+    """Cuts masks into pieces (see the module's docstring)."""
+
+    def __init__(self, params: TrackerParams) -> None:
+        self.params = params
+
+    def loose(
+        self,
+        frame: Frame,
+        labels: U16,
+        noise: F64,
+        background: BackgroundModel,
+        belt: BeltGeometry | None,
+    ) -> I32:
+        """Pieces of surface that stand out of the scenery and no track took (0 in `labels`),
+        numbered from 1."""
+        bg = background
+        q = bg.params
+        body = background_kernels.standing_out(
+            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
+            q.min_height_m,
+        )  # fmt: skip
+        body |= standing_regions(
+            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
+        )
+        if self.params.rigid and belt is not None:
+            body[body] = on_belt_height(frame.xyz[body], belt)
+        # a step of `connect_m` parts touching objects of different heights, or three
+        # times the noise where that is more: a surface in loud noise is not broken into
+        # specks by steps within the noise
+        return self.split(frame, body, noise, belt)
+
+    def split(
+        self,
+        frame: Frame,
+        body: B,
+        noise: F64,
+        belt: BeltGeometry | None,
+        step_noise: bool = True,
+    ) -> I32:
+        """Connected pieces of `body`, cut where neighbours are farther apart in 3D than
+        `connect_m`, or, given the range noise (`step_noise`), than three times the noise of
+        their difference where that is more (a seed on a far, dark target); the pixel on the
+        far side of such a step is left out."""
+        quiet = quietened(frame, body, noise, self.params.connect_m)
+        spread2 = 9.0 * quiet.noise**2 if step_noise else _no_spread(frame.shape)
+        body = pieces_kernels.cut_at_steps(
+            body, quiet.xyz, quiet.range, self.params.connect_m**2, spread2
+        )
+        pieces: I32 = components_kernels.label_pieces(body)
+        return self.by_tops(quiet.xyz, body, pieces, quiet.noise, belt)
+
+    def by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64, belt: BeltGeometry | None) -> I32:
+        """Rigid objects on a known belt: a piece holding two tops is two objects
+        (`tofcut.tracker.tops`); others as they are."""
+        if not self.params.rigid or belt is None or pieces.max() < 1:
+            return pieces
+        up = facing_up(body, xyz, noise, belt)
+        if up is None:
+            return pieces
+        return split_by_tops(pieces, up, xyz, noise, belt, self.params.min_pixels)
+
+
+def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
+    """The points, ranges and noise of `body` for finding its surfaces: where the range noise
+    is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
+    neighbours in `body` (a step between two objects stands out of that median's smaller
+    noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
+    loud = body & (noise * 3.0 >= step_m)
+    if not loud.any():
+        return Quietened(frame.xyz, frame.range, noise)
+    rng = stats_kernels.median3_within(frame.range, body, loud)
+    moved = loud & (frame.range != 0)
+    xyz = frame.xyz.copy()
+    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
+    quiet = noise.copy()
+    quiet[loud] *= MEDIAN_NOISE_SHARE
+    return Quietened(xyz, rng, quiet)
+
+
+@functools.lru_cache(maxsize=4)
+def _no_spread(shape: tuple[int, int]) -> F64:
+    """`np.zeros(shape)`, made once (never written to)."""
+    return np.zeros(shape)

@@ -1,0 +1,39 @@
+"""What stands out, in pieces: the cut at 3D steps between neighbours, compiled (see
+`tofcut.tracker.compiled`).
+"""
+
+from __future__ import annotations
+
+from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
+
+
+@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D))
+def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
+    """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
+    of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
+    step, the pixel with the larger range is the far one)."""
+    h, w = body.shape
+    out = body.copy()
+    for v0 in range(h):
+        for u0 in range(w):
+            if not body[v0, u0]:
+                continue  # only pairs with an end in the body can leave something out
+            # its pairs right, down, left and up, each with its upper-left pixel first (the
+            # one left out on a tie); a pair left or up from the body is met from there
+            for v, u, v2, u2 in (
+                (v0, u0, v0, u0 + 1), (v0, u0, v0 + 1, u0),
+                (v0, u0 - 1, v0, u0), (v0 - 1, u0, v0, u0),
+            ):  # fmt: skip
+                if v < 0 or u < 0 or v2 >= h or u2 >= w or (v2 == v0 and u2 == u0 and body[v, u]):
+                    continue
+                a = xyz[v, u, 0] - xyz[v2, u2, 0]
+                b = xyz[v, u, 1] - xyz[v2, u2, 1]
+                c = xyz[v, u, 2] - xyz[v2, u2, 2]
+                allowed = max(step2, spread2[v, u] + spread2[v2, u2])
+                if a**2 + b**2 + c**2 > allowed:
+                    if rng[v, u] > rng[v2, u2]:
+                        out[v, u] = False
+                    else:
+                        out[v2, u2] = False
+    return out

@@ -1,0 +1,476 @@
+"""Measuring and creating tracks: the live tracks, and what each frame's labels do to them.
+
+Each frame, every track is measured from its mask (`LiveTrack.see`), grown by what stands
+out right beside it and goes on from its surface (an object coming into view), or coasts
+unseen (`LiveTrack.coast`). What stands out and no track can claim, two frames running,
+becomes a new track. Rigid objects on a belt: a track holding two touching surfaces (a step
+apart, or two tops at different heights: `tofcut.tracker.tops`) for a few frames has them
+dealt out again (two objects that came into view as one), two tracks that meet at a convex
+edge with no step are faces of one object and become one, and a track that stays put while
+the belt runs becomes scenery. Targets the user gives are started from their seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+from scipy.optimize import linear_sum_assignment
+
+from tofcut._types import F64, I32, I64, U16, B
+from tofcut.driver.belt import BeltGeometry
+from tofcut.driver.frames import Frame
+from tofcut.tracker import measure_kernels
+from tofcut.tracker.background import BackgroundModel
+from tofcut.tracker.belt_prior import VelocityPrior
+from tofcut.tracker.cut import JointCut
+from tofcut.tracker.errors import SegmentError
+from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, shape_of
+from tofcut.tracker.neighbours import EIGHT, pair_slices
+from tofcut.tracker.params import TrackerParams
+from tofcut.tracker.pieces import Pieces
+from tofcut.tracker.tops import facing_up, one_object
+
+MIN_PIECE = 5
+"""Pieces smaller than this are noise, not more of an object coming into view."""
+
+
+@dataclass(eq=False)
+class Candidate:
+    """What stands out and no track claims, seen again within `gate_m`: how often so far."""
+
+    centroid: F64
+    seen: int = 1
+
+
+@dataclass(frozen=True)
+class Seed:
+    """A target the user gave: a seed pixel (u, v) or a 3D point."""
+
+    pixel: tuple[int, int] | None
+    point: F64 | None
+
+
+@dataclass(frozen=True)
+class Measured:
+    """The tracks a frame's measuring started and ended (`Roster.measure`)."""
+
+    born: tuple[int, ...]
+    ended: tuple[int, ...]
+
+
+_NONE = np.zeros((0, 0), bool)
+
+
+def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
+    """Whether a box (a mask's bounding slices) touches the edge of the image."""
+    rows, cols = box
+    return bool(
+        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
+    )
+
+
+def _touching_pieces(labels: U16, pieces: I32, reach: int) -> dict[int, I32]:
+    """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
+    its mask: `pieces[binary_dilation(labels == id, EIGHT, reach)]`, for all tracks at
+    once."""
+    h, w = labels.shape
+    found = []
+    for dv in range(-reach, reach + 1):
+        for du in range(-reach, reach + 1):
+            here = labels[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)]
+            there = pieces[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
+            both = (here > 0) & (there > 0)
+            if both.any():
+                found.append(here[both].astype(np.int64) << 32 | there[both].astype(np.int64))
+    if not found:
+        return {}
+    pairs = np.unique(np.concatenate(found))
+    ids, rows = np.unique(pairs >> 32, return_index=True)
+    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
+    return dict(zip(ids.tolist(), groups, strict=True))
+
+
+class Roster:
+    """The live tracks, the candidates for new ones and the targets to start (see the
+    module's docstring); the cut (for its distances) and the pieces it measures with."""
+
+    def __init__(self, params: TrackerParams, cut: JointCut, pieces: Pieces) -> None:
+        self.params = params
+        self.cut = cut
+        self.pieces = pieces
+        self.tracks: list[LiveTrack] = []
+        self.candidates: list[Candidate] = []
+        self.seeds: list[Seed] = []
+        """Targets to start from the next frame on."""
+        self.joining: dict[tuple[int, int], int] = {}
+        """Pairs of tracks seen as faces of one object, and for how many frames running."""
+        self._next_id = 1
+
+    def add_seed(self, seed: Seed) -> None:
+        """A known target to follow from the next frame on."""
+        self.seeds.append(seed)
+
+    def take_seeds(self, frame: Frame, belt: BeltGeometry | None) -> list[int]:
+        """Start the targets given by the user, each as the region round its seed
+        (`_region`), so it is followed whole from the first frame; their ids."""
+        born = []
+        h, w = frame.shape
+        for target in self.seeds:
+            pixel, point = target.pixel, target.point
+            if pixel is None:
+                assert point is not None
+                v, u = _nearest_pixel(frame, point)
+            else:
+                u, v = pixel
+                if not (0 <= u < w and 0 <= v < h):
+                    raise SegmentError(f"seed pixel {pixel} is outside the {w}x{h} frame")
+                if not frame.valid[v, u]:
+                    raise SegmentError(f"seed pixel {pixel} is not valid in this frame")
+            seed = frame.xyz[v, u]
+            pts = frame.xyz[self._region(frame, seed)]
+            born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, belt)))
+            self.tracks[-1].seed = seed - self.tracks[-1].filter.position
+        self.seeds.clear()
+        return born
+
+    def _region(self, frame: Frame, centre: F64) -> B:
+        """A seeded target: the pixels within `seed_radius_m` of the 3D point `centre`
+        connected in the image to the one nearest it (the paper's µ_d and its 3D distance:
+        a body, an arm in front of it and the legs below it, but not the floor and walls
+        beyond that distance)."""
+        v, u = _nearest_pixel(frame, centre)
+        ball = frame.valid & (
+            np.linalg.norm(frame.xyz - centre, axis=-1) < self.params.seed_radius_m
+        )
+        ball[v, u] = True
+        parts, _ = ndimage.label(ball, EIGHT)
+        region: B = parts == parts[v, u]
+        return region
+
+    def grown(self, frame: Frame) -> U16:
+        """Labels while the scenery is being learned: each seeded track is the region round
+        its seed, moved on with the track (a cut needs the scenery; pixels left out of the
+        target now would be learned as scenery)."""
+        labels = np.zeros(frame.shape, np.uint16)
+        for t in self.tracks:
+            if t.seed is not None:
+                region = self._region(frame, t.filter.position + t.seed)
+                labels[region & (labels == 0)] = t.id
+        return labels
+
+    def points(self) -> F64:
+        """(N, 3) every track's predicted surface points."""
+        return np.concatenate([t.cloud for t in self.tracks] + [np.zeros((0, 3))])
+
+    def _start(self, points: F64, shape: F64, velocity: F64 | None = None) -> int:
+        """A new track, from a view of its object and its shape; its id."""
+        track = LiveTrack(self._next_id, points, shape, self.params, velocity)
+        self._next_id += 1
+        self.tracks.append(track)
+        return track.id
+
+    def measure(
+        self,
+        frame: Frame,
+        labels: U16,
+        dt: float,
+        noise: F64,
+        background: BackgroundModel,
+        belt: BeltGeometry | None,
+    ) -> Measured:
+        """Update every track from its mask in `labels` (`dt` seconds since the last frame),
+        and look for new objects. Changes `labels`."""
+        p = self.params
+        ended: list[int] = []
+        keep: list[LiveTrack] = []
+        born = self._reconcile(frame, labels, noise, belt)
+        ended += self._join(frame, labels, noise, belt)
+        pieces = (
+            self.pieces.loose(frame, labels, noise, background, belt) if background.ready else None
+        )
+        # across a 3D step, what stands out lies past the seam the step leaves
+        seam = 1 if p.rigid else 2
+        touching = _touching_pieces(labels, pieces, seam) if pieces is not None else {}
+        # each track's box and points (`ndimage.find_objects`, `frame.xyz[box][mask]`)
+        corners, starts, held = measure_kernels.label_points(
+            labels, frame.xyz, np.array([t.id for t in self.tracks], np.int64)
+        )
+        piece_boxes: list[tuple[slice, slice] | None] | None = None
+        for k, t in enumerate(self.tracks):
+            r0, r1, c0, c1 = corners[k].tolist()
+            box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
+            mask = labels[box] == t.id if box is not None else _NONE  # within the box
+            n = int(starts[k + 1] - starts[k])
+            if n >= p.min_pixels:
+                assert box is not None
+                pts = held[starts[k] : starts[k + 1]]
+                entering = _on_border(box, labels.shape)
+                if pieces is not None and t.id in touching:
+                    # what stands out right beside a track and goes on from its surface is
+                    # more of it: an object coming into view is bigger than its mask, one
+                    # first seen in part (a bag's rounded rim, a roll's far end) bigger than
+                    # its shape, and a person may have moved a limb where its prediction
+                    # did not reach
+                    whole_mask = np.zeros(labels.shape, bool)
+                    whole_mask[box] = mask
+                    if piece_boxes is None:
+                        piece_boxes = ndimage.find_objects(pieces)
+                    beside = self._continuing(
+                        frame, whole_mask, pieces, touching[t.id], piece_boxes
+                    )
+                    if beside.size:
+                        seen = whole_mask | np.isin(pieces, beside)
+                        pieces[seen] = 0
+                        labels[seen] = t.id
+                        box = _box_of(seen)
+                        pts = frame.xyz[seen]
+                t.see(pts, box, entering, belt)
+            else:
+                if box is not None:
+                    labels[box][mask] = 0
+                if not t.coast(dt, frame):
+                    ended.append(t.id)
+                    continue
+            keep.append(t)
+        self.tracks = keep
+        if pieces is not None:
+            born += self._detect(frame, pieces, labels, noise, belt)
+        return Measured(tuple(born), tuple(ended))
+
+    def to_scenery(
+        self,
+        frame: Frame,
+        labels: U16,
+        prior: VelocityPrior,
+        dt: float,
+        noise: F64,
+        background: BackgroundModel,
+    ) -> list[int]:
+        """End the tracks that stay put while the belt runs (`prior`), their pixels becoming
+        scenery (`still_s`); their ids. Changes `labels`."""
+        p = self.params
+        bg = background
+        runs = bool(prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
+        ended = []
+        for t in list(self.tracks):
+            if t.stays_put(dt, runs):
+                mask = labels == t.id
+                bg.absorb(frame, mask, noise)
+                labels[mask] = 0
+                self.tracks.remove(t)
+                ended.append(t.id)
+        return ended
+
+    def _join(self, frame: Frame, labels: U16, noise: F64, belt: BeltGeometry | None) -> list[int]:
+        """Rigid objects on a known belt: two tracks whose masks meet with no step between
+        them and no two tops at different heights (`tops.one_object`) for `split_frames`
+        frames running hold faces of one object (its side seen first, a rim, the far end
+        of a roll): the younger is handed to the older. Changes `labels`; the ids ended."""
+        p = self.params
+        if not p.rigid or belt is None or len(self.tracks) < 2:
+            self.joining = {}
+            return []
+        up = facing_up(labels > 0, frame.xyz, noise, belt)
+        pairs = one_object(labels, frame.xyz, up, belt, p.joined_m)
+        self.joining = {pair: self.joining.get(pair, 0) + 1 for pair in pairs}
+        ended: list[int] = []
+        for (older, younger), frames in sorted(self.joining.items()):
+            if frames < p.split_frames or older in ended or younger in ended:
+                continue
+            keep = next(t for t in self.tracks if t.id == older)
+            self.tracks = [t for t in self.tracks if t.id != younger]
+            labels[labels == younger] = older
+            ended.append(younger)
+            keep.restart(frame.xyz[labels == older], belt)
+        self.joining = {k: v for k, v in self.joining.items() if not set(k) & set(ended)}
+        return ended
+
+    def _reconcile(
+        self, frame: Frame, labels: U16, noise: F64, belt: BeltGeometry | None
+    ) -> list[int]:
+        """Deal the surfaces out again where a track has held two for `split_frames` frames
+        (two objects that came into view together, taken as one, or split along the wrong
+        line): each surface goes whole to one of the tracks holding it, most pixels kept in
+        place; a surface left over is a new track. Changes `labels`; the new tracks' ids."""
+        p = self.params
+        if not p.rigid or not self.tracks:
+            return []  # a person's limbs are not other people
+        pieces = self.pieces.split(frame, labels > 0, noise, belt, step_noise=False)
+        n_pieces = int(pieces.max()) + 1
+        row = np.zeros(max(t.id for t in self.tracks) + 1, np.int64)
+        for k, t in enumerate(self.tracks):
+            row[t.id] = k + 1
+        held = measure_kernels.held_pieces(labels, pieces, row, len(self.tracks) + 1, n_pieces)[1:]
+        held[:, 0] = 0
+        size = held.sum(axis=1)
+        big = (held >= p.min_pixels) & (
+            held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
+        )
+        splitting = []
+        for k, t in enumerate(self.tracks):
+            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
+            t.split_frames = t.split_frames + 1 if two else 0
+            if t.split_frames >= p.split_frames:
+                splitting.append(k)
+        if not splitting:
+            return []
+        surfaces = np.nonzero(big[splitting].any(axis=0))[0]
+        involved = np.nonzero((held[:, surfaces] >= p.min_pixels).any(axis=1))[0]
+        rows, cols = linear_sum_assignment(held[np.ix_(involved, surfaces)], maximize=True)
+        owner = dict(zip(surfaces[cols].tolist(), involved[rows].tolist(), strict=True))
+        # the surfaces' pixels are dealt out anew; elsewhere the cut's labels stand
+        dealt = np.isin(pieces, surfaces)
+        labels[dealt] = 0
+        born = []
+        for r in surfaces.tolist():
+            surface = pieces == r
+            if r in owner:
+                labels[surface] = self.tracks[owner[r]].id
+            else:
+                # it moved with the track that held most of it
+                carrier = self.tracks[int(np.argmax(held[:, r]))].filter.velocity
+                pts = frame.xyz[surface]
+                shape = shape_of(pts, SHAPE_FLOOR_M, belt)
+                labels[surface] = self._start(pts, shape, carrier)
+                born.append(int(labels[surface][0]))
+        for k in involved.tolist():
+            t = self.tracks[k]
+            t.split_frames = 0
+            pts = frame.xyz[labels == t.id]
+            if len(pts) < p.min_pixels:
+                continue
+            t.restart(pts, belt)
+        return born
+
+    def _continuing(
+        self,
+        frame: Frame,
+        mask: B,
+        pieces: I32,
+        near: I32,
+        piece_boxes: list[tuple[slice, slice] | None],
+    ) -> I32:
+        """Which pieces beside a track's `mask` are more of the same object (pieces smaller
+        than MIN_PIECE are noise): for rigid targets, those that go on from the mask's
+        surface without a 3D step (`joined_m`); for targets that bend, all (a limb).
+        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
+        keep = []
+        for r in near.tolist():
+            box = piece_boxes[r - 1]
+            assert box is not None
+            if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
+                continue
+            if self.params.rigid:
+                share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
+                if share < 0.5:
+                    continue
+            keep.append(r)
+        return np.array(keep, np.int32)
+
+    def _detect(
+        self, frame: Frame, pieces: I32, labels: U16, noise: F64, belt: BeltGeometry | None
+    ) -> list[int]:
+        """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
+        row (within `gate_m`), a track. A piece most of which a track could claim is a
+        fringe of that track, not a new object."""
+        p = self.params
+        sizes = np.bincount(pieces.ravel())
+        claim = (p.background_cap - p.object_cost) / p.beta
+        found = []
+        for r in np.nonzero(sizes >= p.min_pixels)[0]:
+            if r == 0:
+                continue
+            piece = pieces == r
+            if not _solid(piece, p.min_pixels):
+                continue
+            pts = frame.xyz[piece]
+            centroid = pts.mean(axis=0)
+            if (
+                self.tracks
+                and np.median(self.cut.distances(self.tracks, pts, noise[piece]).min(axis=0))
+                < claim
+            ):
+                continue
+            found.append((centroid, pts, piece))
+        born = []
+        next_candidates = []
+        for centroid, pts, piece in found:
+            match = None
+            for c in self.candidates:
+                if np.linalg.norm(c.centroid - centroid) < p.gate_m:
+                    match = c
+                    break
+            if match is None:
+                next_candidates.append(Candidate(centroid))
+                continue
+            self.candidates.remove(match)
+            match.seen += 1
+            match.centroid = centroid
+            if match.seen >= p.confirm_frames:
+                born.append(self._start(pts, shape_of(pts, SHAPE_FLOOR_M, belt)))
+                t = self.tracks[-1]
+                labels[piece] = t.id
+                t.usual_pixels = float(len(pts))
+                t.last = t.report(pts, _box_of(piece))
+            else:
+                next_candidates.append(match)
+        self.candidates = next_candidates
+        return born
+
+
+def _solid(piece: B, min_pixels: int) -> bool:
+    """Whether a piece has a body: `min_pixels` / 2 pixels or more whose 3×3 neighbourhood is
+    all in it, or it is coming into view. A sliver along a depth edge (mixed pixels
+    flickering in front of the scenery, a rail's rim) has none; the narrowest object has."""
+    box = _box_of(piece)
+    if _on_border(box, piece.shape):
+        return True  # coming into view: a sliver of it first
+    core = ndimage.binary_erosion(piece[box], EIGHT)
+    return int(np.count_nonzero(core)) * 2 >= min_pixels
+
+
+def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
+    """(v, u) of the valid pixel whose 3D point is nearest `point`."""
+    dist = np.linalg.norm(frame.xyz - point, axis=-1)
+    dist[~frame.valid] = np.inf
+    v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
+    return int(v), int(u)
+
+
+def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float) -> float:
+    """Of the pixel pairs where `a` meets `b` side by side (`b` within `box`), the share
+    whose 3D points are within `step_m` of each other (0 where they do not meet)."""
+    h, w = a.shape
+    rows = slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h))
+    cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
+    pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
+    meet = joined = 0
+    for k in (0, 1):  # right, down
+        one, other = pair_slices(pa.shape, k)
+        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
+        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
+        meet += gap.size
+        joined += int(np.count_nonzero(gap <= step_m))
+    return joined / meet if meet else 0.0
+
+
+def _box_of(mask: B) -> tuple[slice, slice]:
+    """The bounding slices (rows, columns) of a mask that is not empty."""
+    rows, cols = np.nonzero(mask.any(axis=1))[0], np.nonzero(mask.any(axis=0))[0]
+    return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
+
+
+def _touching(pieces: I32, surfaces: I64, mask: B) -> bool:
+    """Whether the largest of these pieces meets another of them within the track's own
+    `mask` (across the seam a 3D step leaves, or across a side face between them that noise
+    breaks into specks): two objects side by side, not one seen either side of an occluder
+    (which parts the mask)."""
+    sizes = np.bincount(pieces.ravel())
+    first = surfaces[np.argmax(sizes[surfaces])]
+    parts, _ = ndimage.label(mask, EIGHT)
+    home = np.bincount(parts[pieces == first]).argmax()
+    if home == 0:
+        return False
+    return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())

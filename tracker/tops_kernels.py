@@ -1,0 +1,91 @@
+"""Telling tops apart, compiled (see `tofcut.tracker.compiled`): which pixels lie on steep
+surfaces, and each top's size, height, noise and piece (`tofcut.tracker.tops`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tofcut._types import F64, I32, I64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
+
+
+@kernel((B_2D, F64_3D, F64_2D, F64_1D, 1, 1.0))
+def steep_pixels(
+    where: B, xyz: F64, noise: F64, normal: F64, baseline: int, max_slope: float
+) -> tuple[B, F64, F64]:
+    """`tofcut.tracker.tops.facing_up`'s arithmetic: of `where`'s points averaged over 3×3,
+    the pixels on a span of `baseline` pixels (along a row or a column) whose rise along
+    `normal` is more than `max_slope` times their spacing across it; and, per direction,
+    each pair's slope noise (a 3×3 mean's noise twice, over the spacing)."""
+    h, w = where.shape
+    pts = np.full((h, w, 3), np.nan)
+    for v in range(h):
+        for u in range(w):
+            if not where[v, u]:
+                continue
+            n = 0
+            sx = sy = sz = 0.0
+            for v2 in range(max(v - 1, 0), min(v + 2, h)):
+                for u2 in range(max(u - 1, 0), min(u + 2, w)):
+                    if where[v2, u2]:
+                        sx += xyz[v2, u2, 0]
+                        sy += xyz[v2, u2, 1]
+                        sz += xyz[v2, u2, 2]
+                        n += 1
+            pts[v, u, 0], pts[v, u, 1], pts[v, u, 2] = sx / n, sy / n, sz / n
+    steep = np.zeros((h, w), np.bool_)
+    ratios = np.empty((2, h * w))
+    counts = np.zeros(2, np.int64)
+    share = math.sqrt(2.0) / 3.0
+    for axis in range(2):
+        dv, du = (baseline, 0) if axis == 0 else (0, baseline)
+        for v in range(h - dv):
+            for u in range(w - du):
+                if not (where[v, u] and where[v + dv, u + du]):
+                    continue
+                d0 = pts[v + dv, u + du, 0] - pts[v, u, 0]
+                d1 = pts[v + dv, u + du, 1] - pts[v, u, 1]
+                d2 = pts[v + dv, u + du, 2] - pts[v, u, 2]
+                rise = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
+                a0, a1, a2 = d0 - rise * normal[0], d1 - rise * normal[1], d2 - rise * normal[2]
+                spacing = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+                ratios[axis, counts[axis]] = noise[v, u] * share / max(spacing, 1e-6)
+                counts[axis] += 1
+                if abs(rise) > max_slope * spacing:
+                    for k in range(baseline + 1):
+                        steep[v + k * dv // baseline, u + k * du // baseline] = True
+    return steep, ratios[0, : counts[0]].copy(), ratios[1, : counts[1]].copy()
+
+
+@kernel((I32_2D, 1, I32_2D, F64_3D, F64_2D, F64_1D, F64_1D))
+def top_stats(
+    tops: I32, n: int, pieces: I32, xyz: F64,
+    noise: F64, origin: F64, normal: F64,
+) -> tuple[I64, F64, F64, I64]:  # fmt: skip
+    """Per top 1..n (index 0 unused): its pixels, mean height along `normal` above `origin`,
+    the mean of its pixels' noise², and the piece it lies in."""
+    size = np.zeros(n + 1, np.int64)
+    height = np.zeros(n + 1)
+    noise2 = np.zeros(n + 1)
+    home = np.zeros(n + 1, np.int64)
+    h, w = tops.shape
+    for v in range(h):
+        for u in range(w):
+            t = tops[v, u]
+            if t == 0:
+                continue
+            size[t] += 1
+            height[t] += (
+                (xyz[v, u, 0] - origin[0]) * normal[0] + (xyz[v, u, 1] - origin[1]) * normal[1]
+                + (xyz[v, u, 2] - origin[2]) * normal[2]
+            )  # fmt: skip
+            noise2[t] += noise[v, u] ** 2
+            home[t] = pieces[v, u]
+    for t in range(1, n + 1):
+        if size[t]:
+            height[t] /= size[t]
+            noise2[t] /= size[t]
+    return size, height, noise2, home
