@@ -309,11 +309,7 @@ class CameraRig:
             for later in self._pending:
                 later.join()
         finally:
-            close = getattr(self.opened, "close", None)  # an emulator in its own process
-            if callable(close):
-                close()
-            else:
-                self.camera.close()
+            self.opened.close()  # the camera, then the emulator's process if it has one
 
     def __enter__(self) -> CameraRig:
         return self

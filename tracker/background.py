@@ -126,7 +126,6 @@ class BackgroundModel:
         self._held_surface: F64 = np.full(shape, np.nan)
         """The belt's surface along each pixel's ray, where it meets the belt (else NaN)."""
         self._cleared_range: F64 = np.full(shape, np.nan)
-        self._cleared_sigma: F64 = np.full(shape, np.nan)
         """The scenery as the last `clear_belt` left it, and what `absorb` took in since: what
         `hold_belt` holds it to."""
 
@@ -194,16 +193,15 @@ class BackgroundModel:
         self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
         self._laid_range = np.where(fix, self.range, np.nan)
         self._cleared_range = np.where(self.known, self.range, np.nan)
-        self._cleared_sigma = self.sigma.copy()
 
     def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
         """Over a running belt of known width nothing stands still: where the scenery has come
         nearer than it was when the belt was laid (objects passing so slowly, or so close
-        together, that the model took them in), it goes back to what it was then, and its
-        noise to at most the larger of then and what the sensor's `noise` says (objects missed
-        while passing would otherwise widen it, until none stood out of it). What stood
-        there when the belt was laid (a rail, a guide) stays; a pixel learned only since
-        goes back to the belt's surface."""
+        together, that the model took them in), it goes back to what it was then; and its
+        noise is at most what the sensor's `noise` says (objects missed while passing would
+        otherwise widen it, until none stood out of it). What stood there when the belt was
+        laid (a rail, a guide), or was taken in by `absorb` since, stays; a pixel learned
+        only since goes back to the belt's surface."""
         if belt is not self._held_for or np.isnan(self._held_surface).all():
             with np.errstate(invalid="ignore", divide="ignore"):
                 surface = belt.range_along(frame.xyz / frame.range[..., None])
@@ -225,7 +223,6 @@ class BackgroundModel:
         self.range[take] = frame.range[take]
         self.sigma[take] = noise[take]
         self._cleared_range[take] = frame.range[take]  # scenery by decision: `hold_belt` keeps it
-        self._cleared_sigma[take] = noise[take]
         self.known |= take
         self._farther[take] = 0
         self._farther_min[take] = np.inf

@@ -1269,7 +1269,8 @@ class BeltFinder:
         p = self.params
         if self._sweep is None:
             self._sweep = SweepWindow(ok.shape, self._plane.normal, p.sweep)
-        self._sweep.add(frame.xyz, ok & (sigma <= quiet_enough(sigma[ok], p)), sigma, t)
+        if self._sweep.sampling(t):  # the noise's median only for the frames sampled
+            self._sweep.add(frame.xyz, ok & (sigma <= quiet_enough(sigma[ok], p)), sigma, t)
         if not self._sweep.due(t):
             return
         window = self._sweep

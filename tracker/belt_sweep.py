@@ -144,10 +144,13 @@ class SweepWindow:
         """Samples in the window."""
         return min(self._samples, len(self._heights))
 
+    def sampling(self, t: float) -> bool:
+        """Whether a frame at time `t` (s) is to be sampled."""
+        return self._t_sampled is None or t - self._t_sampled >= self.params.every_s * 0.999
+
     def add(self, xyz: F64, ok: B, sigma: F64, t: float) -> bool:
         """Sample the frame at time `t` (s) if it is time to; True if it was."""
-        p = self.params
-        if self._t_sampled is not None and t - self._t_sampled < p.every_s * 0.999:
+        if not self.sampling(t):
             return False
         self._t_first = t if self._t_first is None else self._t_first
         self._t_sampled = t

@@ -10,10 +10,14 @@ is not to be scored (MOTChallenge's convention): tofcut ignores tracks near it.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 from tofcut.tools.pipeline.sources import SourceError
+
+T = TypeVar("T")
 
 UNKNOWN = -1.0
 """MOTChallenge's value of a coordinate it does not give."""
@@ -58,18 +62,25 @@ def parse_row(text: str) -> MotRow | None:
     return MotRow(int(frame), int(ident), box, values[6], xyz)
 
 
-def read_mot(path: Path) -> list[MotRow]:
-    """Every row of a MOTChallenge file, in file order; a bad row is a one-line SourceError."""
+def read_lines(path: Path, parse: Callable[[str], T | None], what: str) -> list[T]:
+    """What `parse` makes of every line of a text file, in file order (None: a line it
+    passes over); an unreadable file or a line `parse` refuses is a one-line SourceError
+    naming `what` the lines should be."""
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"cannot read {path} as MOTChallenge rows: {exc}") from None
-    rows = []
+        raise SourceError(f"cannot read {path} as {what}s: {exc}") from None
+    out = []
     for n, line in enumerate(text.splitlines(), start=1):
         try:
-            row = parse_row(line)
+            item = parse(line)
         except ValueError as exc:
-            raise SourceError(f"{path}, line {n}: not a MOTChallenge row: {exc}") from None
-        if row is not None:
-            rows.append(row)
-    return rows
+            raise SourceError(f"{path}, line {n}: not a {what}: {exc}") from None
+        if item is not None:
+            out.append(item)
+    return out
+
+
+def read_mot(path: Path) -> list[MotRow]:
+    """Every row of a MOTChallenge file, in file order; a bad row is a one-line SourceError."""
+    return read_lines(path, parse_row, "MOTChallenge row")

@@ -32,6 +32,7 @@ import numpy.typing as npt
 from pycocotools import mask as coco_mask
 
 from tofcut.tools.pipeline.frame_stamp import frame_index
+from tofcut.tools.pipeline.mot import read_lines
 from tofcut.tools.pipeline.sources import SourceError
 from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.tracks import TrackedFrame
@@ -142,18 +143,7 @@ def parse_line(text: str) -> MotsObject | None:
 
 def read_mots(path: Path) -> list[MotsObject]:
     """Every line of a MOTS file, in file order; a bad line is a one-line SourceError."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SourceError(f"cannot read {path} as a MOTS file: {exc}") from None
-    out = []
-    for n, line in enumerate(text.splitlines(), start=1):
-        try:
-            obj = parse_line(line)
-        except ValueError as exc:
-            raise SourceError(f"{path}, line {n}: not a MOTS line: {exc}") from None
-        if obj is not None:
-            out.append(obj)
+    out = read_lines(path, parse_line, "MOTS line")
     sizes = {(o.height, o.width) for o in out}
     if len(sizes) > 1:
         raise SourceError(f"{path}: masks of more than one size: {sorted(sizes)}")
