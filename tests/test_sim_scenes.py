@@ -14,8 +14,19 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene, parse_scene, scene_toml
 from tofcut.sim.truth import truth_path
 
-BUILT_IN = ["conveyor", "paper-fig1", "paper-fig3", "person", "robot", "tools"]
-PAPER = ["paper-fig1", "paper-fig3", "person", "robot"]
+BUILT_IN = [
+    "belt-parts",
+    "conveyor",
+    "paper-fig1",
+    "paper-fig3",
+    "paper-fig4",
+    "paper-fig5",
+    "person",
+    "robot",
+    "table",
+    "tools",
+]
+PAPER = ["paper-fig1", "paper-fig3", "paper-fig4", "person", "robot"]
 
 ROOM = """
 duration_s = 10.0
