@@ -12,7 +12,7 @@ from tofcut.driver.errors import TofcutError
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tools.bench.cut_timing import time_cut
-from tofcut.tools.experiments.reproduce import deepest_pixel, iou
+from tofcut.tools.experiments.reproduce import deepest_pixel, extent_of, iou
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.paper.segment import Energy, SegmentParams, Target, segment, segment_arrays
 
@@ -174,7 +174,8 @@ def test_seeded_fast_equals_reference_where_the_weights_join_whole_surfaces(scen
 def test_range_penalty_separates_the_look_alikes_that_intensity_cannot(fig1):
     source, frame, truth = fig1
     info = source.target
-    target = Target(pixel=info.seed_pixel, point=tuple(info.centroid))
+    extent = extent_of(truth.object(info.id))
+    target = Target(pixel=info.seed_pixel, point=tuple(info.centroid), extent_m=extent)
     mask = truth.labels == info.id
     by_range = segment(frame, target, Energy.RANGE_DATA)
     by_intensity = segment(frame, target, Energy.INTENSITY)
@@ -208,8 +209,10 @@ def test_reproduce_writes_a_report(tmp_path, capsys):
     text = (tmp_path / "report.md").read_text()
     for heading in ("Figure 1", "Figure 4", "Figure 5"):
         assert heading in text
-    assert "claims are supported by the numbers" in text
-    for png in ("fig1-target-box.png", "fig4-robot.png", "fig5-wrench.png"):
+    assert "of the paper's claims hold where their premise holds" in text
+    assert "of the paper's claims hold on the hard scenes" in text
+    assert "| support (ours) | grabCut |" in text
+    for png in ("fig1-target-box.png", "fig4-robot.png", "fig4-hard-robot.png", "fig5-wrench.png"):
         assert (tmp_path / png).stat().st_size > 1000
         assert f"({png})" in text
     assert main(["reproduce", "--out", str(tmp_path), "--seeds", "0"]) == 1

@@ -67,5 +67,7 @@ def test_bad_targets_are_reported(fig1):
         segment_many(frame, [])
     with pytest.raises(SegmentError, match="share a seed"):
         segment_many(frame, [target, target], energy=Energy.RANGE_SMOOTH)
+    with pytest.raises(SegmentError, match="not the support energy"):
+        segment_many(frame, [target], energy=Energy.SUPPORT)
     with pytest.raises(SegmentError, match="must be an Energy"):
         segment_many(frame, [target], energy="range-data")  # type: ignore[arg-type]

@@ -27,6 +27,7 @@ import numpy.typing as npt
 from tofcut._types import F64
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import DIAGONAL, DU, DV, OFFSETS, pair_slices
+from tofcut.tracker.stats import robust_sigma
 
 BOOL = npt.NDArray[np.bool_]
 
@@ -227,6 +228,20 @@ def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: 
     window = (slice(max(v - radius, 0), v + radius + 1), slice(max(u - radius, 0), u + radius + 1))
     picked = xyz[window][valid[window]]
     return np.median(picked, axis=0) if picked.size else None
+
+
+def window_range_noise(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: int) -> float:
+    """σr round (u, v): the robust σ of the range's second differences along the rows of the
+    (2r+1)² window, over √6 (a second difference of three independent ranges has σ·√6; a
+    surface's slope cancels, and the few that straddle an edge do not move the median).
+    0 when the window has no three valid pixels in a row."""
+    u, v = centre
+    rows = slice(max(v - radius, 0), v + radius + 1)
+    cols = slice(max(u - radius, 0), u + radius + 1)
+    rng, ok = np.linalg.norm(xyz[rows, cols], axis=-1), valid[rows, cols]
+    second = rng[:, :-2] - 2.0 * rng[:, 1:-1] + rng[:, 2:]
+    both = ok[:, :-2] & ok[:, 1:-1] & ok[:, 2:]
+    return robust_sigma(second[both]) / math.sqrt(6.0) if both.any() else 0.0
 
 
 def background_intensity(grey: F64, valid: BOOL, xyz: F64, mu_d: F64, margin_m: float) -> float:

@@ -23,9 +23,14 @@ from tofcut._types import F64
 from tofcut.driver.frames import Frame
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.paper import energy as en
+from tofcut.tracker.paper import support as sp
 from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
+from tofcut.tracker.paper.support import Plane
 
 BOOL = npt.NDArray[np.bool_]
+
+NOISE_WINDOW = 4
+"""Half-size of the window round the target's pixel whose range noise σr is measured."""
 
 
 class Energy(enum.Enum):
@@ -41,11 +46,19 @@ class Energy(enum.Enum):
     """§4.2 with eq. (7): one seed, 1/n to the background, range-weighted 8-neighbour edges."""
     RANGE_INTENSITY_SMOOTH = "range-intensity-smooth"
     """§4.2 with eq. (8): as RANGE_SMOOTH, edges weighted by range and intensity."""
+    SUPPORT = "support"
+    """Beyond the paper: eq. (8)'s edges and a unary cost from the height above the plane
+    the seed stands on (`tofcut.tracker.paper.support`), for objects touching a support."""
 
     @property
     def seeded(self) -> bool:
         """True for the §4.2 energies (a seed pixel, no data term)."""
         return self in (Energy.RANGE_SMOOTH, Energy.RANGE_INTENSITY_SMOOTH)
+
+    @property
+    def from_seed(self) -> bool:
+        """True for the energies grown from a seed pixel: §4.2's and SUPPORT."""
+        return self.seeded or self is Energy.SUPPORT
 
 
 @dataclass(frozen=True)
@@ -61,6 +74,9 @@ class Target:
     """(u, v): column and row of a pixel on the target."""
     point: tuple[float, float, float] | None = None
     """Expected 3D position (camera frame, metres), e.g. the centroid predicted by a tracker."""
+    extent_m: float | None = None
+    """Expected extent: the radius round `point` the target fills (half its size), metres;
+    it scales eq. (6)'s β. None: `SegmentParams.default_extent_m`."""
 
     def __post_init__(self) -> None:
         if self.pixel is None and self.point is None:
@@ -73,6 +89,8 @@ class Target:
             len(self.point) != 3 or not all(math.isfinite(float(c)) for c in self.point)
         ):
             raise SegmentError(f"a target's point is three finite numbers, not {self.point!r}")
+        if self.extent_m is not None and not (math.isfinite(self.extent_m) and self.extent_m > 0.0):
+            raise SegmentError(f"a target's extent is a finite number > 0, not {self.extent_m!r}")
 
 
 @dataclass(frozen=True)
@@ -87,15 +105,20 @@ class SegmentParams:
 
     smoothness: float = 200.0
     """Potts weight λ per axial neighbour pair (λ/√2 diagonally), grey levels²."""
-    beta_range: float = 2.0e5
-    """β of eq. (6), grey levels² per m²: a pixel of the target's intensity 0.13 m from µd,
-    against a background 60 grey levels darker, is neutral (2e5 · 0.134² ≈ 60²)."""
+    beta_range: float | None = None
+    """β of eq. (6), grey levels² per m²; default: `beta_factor` × (µt − µb)² / (R + 2σr)²,
+    R the target's extent and σr the range noise round it, so that a pixel of the target's
+    intensity at the edge of its extent (plus twice the noise) is neutral: β follows the
+    object's size, the noise and the contrast the intensity term pays with."""
+    beta_factor: float = 1.0
+    """The multiple of the derived β used when `beta_range` is None (the sensitivity sweep's)."""
     beta_image: float = 0.05
     """β of the image-plane penalty, grey levels² per pixel² (the paper shows 0.05 and 0.2)."""
     mu_target: float | None = None
     """µt; default: the median valid intensity in the prior window around the target's pixel."""
     mu_background: float | None = None
-    """µb; default: the median valid intensity farther than `background_margin_m` from µd."""
+    """µb; default: the median valid intensity farther than the target's extent (plus twice
+    the range noise) from µd."""
     sigma_s: float | None = None
     """σs of eqs. (7) and (8), metres; default: `sigma_s_factor` × the median distance between
     valid neighbours' 3D points."""
@@ -106,15 +129,37 @@ class SegmentParams:
     sigma_i_factor: float = 3.0
     prior_window: int = 2
     """Half-size of the window around the target's pixel that µt and µd are taken from."""
-    background_margin_m: float = 0.3
-    """Pixels this far from µd or farther estimate µb."""
+    default_extent_m: float = 0.2
+    """The extent assumed for a target that gives none (`Target.extent_m`), metres: half the
+    diagonal of a box of about 23 cm."""
+    support_weight: float = 8.0
+    """SUPPORT: the factor of eq. (8)'s edge weights, in the unit of the height costs."""
+    support_cap: float = 8.0
+    """SUPPORT: the largest height cost of a pixel (a few wild ranges cannot force a label)."""
+    support_height: float = 2.0
+    """SUPPORT: the largest target height z_t, in σ of the support's range noise (a pixel
+    z_t/2 above the support is neutral)."""
+    connect_factor: float = 4.0
+    """SUPPORT: neighbours closer than this × σs in 3D join the seed's part of the mask."""
 
     def __post_init__(self) -> None:
-        for name in ("smoothness", "beta_range", "beta_image", "background_margin_m"):
+        for name in (
+            "smoothness",
+            "beta_image",
+            "default_extent_m",
+            "support_weight",
+            "support_cap",
+            "support_height",
+            "connect_factor",
+        ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
                 raise SegmentError(f"{name} must be a finite number ≥ 0, not {value!r}")
-        for name in ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor"):
+        if self.beta_range is not None and not (
+            math.isfinite(self.beta_range) and self.beta_range >= 0.0
+        ):
+            raise SegmentError(f"beta_range must be a finite number ≥ 0, not {self.beta_range!r}")
+        for name in ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor", "beta_factor"):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0.0):
                 raise SegmentError(f"{name} must be a finite number > 0, not {value!r}")
@@ -139,6 +184,16 @@ class Model:
     """metres."""
     sigma_i: float
     """grey levels."""
+    beta_range: float = 0.0
+    """β of eq. (6), grey levels² per m²."""
+    extent_m: float = 0.0
+    """The target's extent R, metres."""
+    range_noise_m: float = 0.0
+    """σr: the range noise round the target's pixel, metres."""
+    supports: tuple[Plane, ...] = ()
+    """SUPPORT: the planes the seed stands in front of (none: every pixel is off them)."""
+    support_height: float = 0.0
+    """SUPPORT: the target height z_t, in σ of the support's noise."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,7 +203,7 @@ class Segmentation:
     mask: BOOL
     """(H, W), True on the target."""
     energy: float
-    """E of the mask: the minimum of the energy."""
+    """E of the mask: the minimum of the energy (SUPPORT: of the minimum's part kept)."""
     seconds: float
     """Wall time of `segment`: estimation, building the energy, and the cut."""
     kind: Energy
@@ -197,9 +252,13 @@ def segment_arrays(
         solution = solve_cropped(problem, model.pixel)
     else:
         solution = solve_reduced(problem)
-    value = en.energy_of(solution.labels, problem.cost1, problem.cost0, problem.weights)
+    labels = solution.labels
+    if energy is Energy.SUPPORT:
+        reach = params.connect_factor * model.sigma_s
+        labels = sp.reached(labels, xyz, valid, model.pixel, reach)
+    value = en.energy_of(labels, problem.cost1, problem.cost0, problem.weights)
     return Segmentation(
-        solution.labels,
+        labels,
         value,
         time.perf_counter() - start,
         energy,
@@ -240,7 +299,7 @@ def estimate_model(
             raise SegmentError(
                 f"the target's pixel (u, v) = ({u}, {v}) is outside the {w}×{h} frame"
             )
-        if energy.seeded and not valid[v, u]:
+        if energy.from_seed and not valid[v, u]:
             raise SegmentError(f"the seed pixel ({u}, {v}) is invalid (saturated or too dark)")
     else:
         assert target.point is not None
@@ -259,16 +318,32 @@ def estimate_model(
         if near_t is None:
             raise SegmentError(f"no valid pixel near the target's pixel ({u}, {v})")
         mu_t = near_t
+    extent = target.extent_m if target.extent_m is not None else params.default_extent_m
+    noise = en.window_range_noise(xyz, valid, (u, v), NOISE_WINDOW)
+    margin = extent + 2.0 * noise
     if params.mu_background is not None:
         mu_b = params.mu_background * scale
     else:
-        mu_b = en.background_intensity(grey, valid, xyz, mu_d, params.background_margin_m)
+        mu_b = en.background_intensity(grey, valid, xyz, mu_d, margin)
+    if params.beta_range is not None:
+        beta = params.beta_range
+    else:
+        beta = params.beta_factor * (mu_t - mu_b) ** 2 / margin**2
     sigma_s = params.sigma_s
     sigma_i = params.sigma_i * scale if params.sigma_i is not None else None
-    if energy.seeded and sigma_s is None:
+    if energy.from_seed and sigma_s is None:
         sigma_s = params.sigma_s_factor * en.neighbour_distance(xyz, valid)
-    if energy is Energy.RANGE_INTENSITY_SMOOTH and sigma_i is None:
+    if energy in (Energy.RANGE_INTENSITY_SMOOTH, Energy.SUPPORT) and sigma_i is None:
         sigma_i = params.sigma_i_factor * en.neighbour_step(grey, valid)
+    supports: tuple[Plane, ...] = ()
+    z_target = 0.0
+    if energy is Energy.SUPPORT:
+        planes = sp.find_planes(xyz, valid, en.neighbour_distance(xyz, valid))
+        supports = sp.supports_of(planes, xyz[v, u])
+        if supports:
+            z = sp.heights(xyz, supports)
+            near_z = en.window_median(z, valid, (u, v), window)
+            z_target = min(near_z if near_z is not None else 0.0, params.support_height)
     return Model(
         ref,
         (u, v),
@@ -277,6 +352,11 @@ def estimate_model(
         float(mu_b),
         max(float(sigma_s or 0.0), 1e-9),
         max(float(sigma_i or 0.0), 1e-9),
+        float(beta),
+        float(extent),
+        float(noise),
+        supports,
+        z_target,
     )
 
 
@@ -290,6 +370,13 @@ def build_problem(
 ) -> Problem:
     """The unary costs and edge weights of `energy` for this frame."""
     grey = intensity * (255.0 / model.intensity_ref)
+    if energy is Energy.SUPPORT:
+        z = sp.heights(xyz, model.supports)
+        cost1, cost0 = sp.support_costs(
+            z, valid, model.pixel, model.support_height, params.support_cap
+        )
+        weights = en.range_weights(xyz, valid, model.sigma_s, grey, model.sigma_i)
+        return Problem(cost1, cost0, weights * params.support_weight)
     if energy.seeded:
         cost1, cost0 = en.seed_costs(valid.shape, model.pixel)
         if energy is Energy.RANGE_SMOOTH:
@@ -299,7 +386,7 @@ def build_problem(
         return Problem(cost1, cost0, weights)
     cost1, cost0 = en.intensity_costs(grey, valid, model.mu_target, model.mu_background)
     if energy is Energy.RANGE_DATA:
-        cost1 = cost1 + en.range_penalty(xyz, valid, np.array(model.mu_d), params.beta_range)
+        cost1 = cost1 + en.range_penalty(xyz, valid, np.array(model.mu_d), model.beta_range)
     elif energy is Energy.IMAGE_PLANE:
         cost1 = cost1 + en.image_penalty(valid, model.pixel, params.beta_image)
     weights = en.potts_weights(valid.shape, params.smoothness)

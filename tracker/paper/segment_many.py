@@ -8,8 +8,8 @@ Each target is one more label of a Potts energy minimised by α-expansion
 (`tofcut.tracker.multicut`, the tracker's joint cut):
 
 - data-term energies: label k + 1 costs target k's own eq. (5)/(6) target cost (its µt, its
-  µd or image centre), the background eq. (5)'s background cost, with µb taken from the
-  pixels far from every target; the Potts weights are those of `segment`;
+  µd or image centre, its β), the background eq. (5)'s background cost, with µb taken from
+  the pixels beyond every target's extent; the Potts weights are those of `segment`;
 - §4.2 energies: every target label costs 1/n a pixel, and a target's seed pays 1 under any
   label but its own; the edges are eq. (7) or (8).
 
@@ -76,6 +76,8 @@ def segment_many(
     params = params or SegmentParams()
     if not isinstance(energy, Energy):
         raise SegmentError(f"energy must be an Energy, not {energy!r}")
+    if energy is Energy.SUPPORT:
+        raise SegmentError("segment_many takes the paper's energies, not the support energy")
     if not targets:
         raise SegmentError("segment_many needs at least one target")
     intensity, xyz, valid = frame.intensity, frame.xyz, frame.valid
@@ -85,7 +87,8 @@ def segment_many(
     if not energy.seeded and params.mu_background is None:
         grey = en.grey_levels(intensity, valid, models[0].intensity_ref)
         points = np.array([m.mu_d for m in models])
-        mu_b = en.background_intensity(grey, valid, xyz, points, params.background_margin_m)
+        margin = max(m.extent_m + 2.0 * m.range_noise_m for m in models)
+        mu_b = en.background_intensity(grey, valid, xyz, points, margin)
         models = [replace(m, mu_background=mu_b) for m in models]
     problems = [build_problem(intensity, xyz, valid, energy, params, m) for m in models]
     n = valid.size

@@ -1,0 +1,189 @@
+"""Beyond the paper: segmenting an object that touches its support (floor, belt, table).
+
+Where an object stands on a surface the range is continuous across the contact, so §4.2's
+weights tie the object to its support as strongly as to itself (docs/reproduce/report.md).
+The support energy adds what the frame says about that surface: the large planes of the
+frame are found by RANSAC, the support is the nearest plane in front of which the seed
+lies, and each pixel's height z above it, in units of the plane's own range noise σ, gives
+a unary cost:
+
+    cost0 = min(C, max(z, 0)² / 2)          (background: on the support, or behind it)
+    cost1 = min(C, max(z_t − z, 0)² / 2)    (target: at least the seed's height z_t)
+
+with z_t the median height round the seed, at most `SegmentParams.support_height`; the
+edges are eq. (8)'s, times `support_weight`, and the seed is tied to the target. The mask is
+the part of the minimum that reaches the seed through neighbours whose 3D distance is below
+`connect_factor` × σs: the energy says "above the support", the range says "which object".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from tofcut._types import F64
+from tofcut.tracker.neighbours import OFFSETS, pair_slices
+from tofcut.tracker.stats import robust_sigma
+
+BOOL = npt.NDArray[np.bool_]
+
+MIN_SHARE = 0.08
+"""A plane holds at least this share of the valid pixels to count as a support."""
+MAX_PLANES = 3
+"""At most this many planes are looked for (floor, wall and a table, say)."""
+TRIES = 200
+"""RANSAC hypotheses per plane."""
+SAMPLE = 1000
+"""Hypotheses are scored on this many points."""
+INLIER_SIGMAS = 3.0
+"""A point is on a plane when its distance is below this many σ of the plane's noise."""
+MIN_COHERENCE = 0.5
+"""Share of a plane's pixels whose four neighbours are on it too: a plane that only slices
+through several objects' faces (thin stripes) is no support."""
+MAX_NOISE_RATIO = 1.5
+"""A plane whose noise is more than this times the largest plane's is no support: a band that
+thick holds slices of several surfaces (or a far, dark one no object stands on)."""
+RANSAC_SEED = 0
+"""RANSAC's random numbers: the same frame gives the same planes."""
+
+
+@dataclass(frozen=True)
+class Plane:
+    """n·p = offset, n a unit normal towards the camera (at the origin)."""
+
+    normal: tuple[float, float, float]
+    offset: float
+    share: float
+    """Share of the valid pixels on the plane."""
+    sigma_m: float
+    """Robust σ of the inliers' distances from the plane, metres: the range noise on it."""
+
+    def height(self, points: F64) -> F64:
+        """Signed distance of points (..., 3) in front of the plane (towards the camera)."""
+        out: F64 = points @ np.asarray(self.normal) - self.offset
+        return out
+
+
+def fit_plane(points: F64) -> tuple[F64, float]:
+    """Least-squares plane of (N, 3) points: unit normal towards the origin, and offset."""
+    centre = points.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov((points - centre).T))
+    n = vecs[:, 0]
+    if float(n @ centre) > 0:
+        n = -n
+    return n, float(n @ centre)
+
+
+def find_planes(xyz: F64, valid: BOOL, scale_m: float) -> list[Plane]:
+    """The large, coherent planes of a frame, largest first. `scale_m` (the median distance
+    between neighbours' points) sets the first inlier band; each plane's own noise the next."""
+    points = xyz[valid]
+    total = len(points)
+    rng = np.random.default_rng(RANSAC_SEED)
+    left = np.ones(total, dtype=bool)
+    planes: list[Plane] = []
+    for _ in range(MAX_PLANES):
+        idx = np.nonzero(left)[0]
+        if idx.size < max(MIN_SHARE * total, 3):
+            break
+        n, off = _ransac(points, idx, INLIER_SIGMAS * scale_m, rng)
+        band = INLIER_SIGMAS * scale_m
+        near = left & (np.abs(points @ n - off) < band)
+        for _ in range(2):  # refit, and measure the plane's own noise
+            if np.count_nonzero(near) < 3:
+                break
+            n, off = fit_plane(points[near])
+            sigma = robust_sigma(points[near] @ n - off)
+            band = INLIER_SIGMAS * max(sigma, 1e-6)
+            near = left & (np.abs(points @ n - off) < band)
+        if np.count_nonzero(near) < MIN_SHARE * total:
+            break
+        left &= ~near
+        on = np.zeros(valid.shape, dtype=bool)
+        on[valid] = near
+        if _coherence(on) < MIN_COHERENCE:
+            continue
+        sigma = robust_sigma(points[near] @ n - off)
+        if planes and sigma > MAX_NOISE_RATIO * planes[0].sigma_m:
+            continue
+        normal = (float(n[0]), float(n[1]), float(n[2]))
+        planes.append(Plane(normal, off, float(near.mean()), sigma))
+    return planes
+
+
+def _ransac(
+    points: F64, idx: npt.NDArray[np.int64], band: float, rng: np.random.Generator
+) -> tuple[F64, float]:
+    """The plane through three of the points `idx` that holds most of a sample of them."""
+    picks = idx[rng.integers(0, idx.size, (TRIES, 3))]
+    a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
+    normals = np.cross(b - a, c - a)
+    lengths = np.linalg.norm(normals, axis=1)
+    good = lengths > 1e-12
+    normals = normals[good] / lengths[good, None]
+    offsets = (normals * a[good]).sum(axis=1)
+    scored = points[idx[rng.integers(0, idx.size, min(SAMPLE, idx.size))]]
+    counts = (np.abs(scored @ normals.T - offsets) < band).sum(axis=0)
+    k = int(np.argmax(counts))
+    return normals[k], float(offsets[k])
+
+
+def _coherence(on: BOOL) -> float:
+    """Share of the True pixels whose four neighbours are True too."""
+    inner = on.copy()
+    inner[1:] &= on[:-1]
+    inner[:-1] &= on[1:]
+    inner[:, 1:] &= on[:, :-1]
+    inner[:, :-1] &= on[:, 1:]
+    return float(np.count_nonzero(inner)) / max(int(np.count_nonzero(on)), 1)
+
+
+def supports_of(planes: list[Plane], point: F64) -> tuple[Plane, ...]:
+    """The planes in front of which `point` lies: what it may stand on or against."""
+    return tuple(p for p in planes if float(p.height(point)) > 0.0)
+
+
+def heights(xyz: F64, planes: tuple[Plane, ...]) -> F64:
+    """(H, W) height in front of the nearest plane, in σ of that plane's noise (the least
+    over the planes, negative behind one); +inf with no plane."""
+    z = np.full(xyz.shape[:2], np.inf)
+    for p in planes:
+        z = np.minimum(z, p.height(xyz) / max(p.sigma_m, 1e-9))
+    return z
+
+
+def support_costs(
+    z: F64, valid: BOOL, seed: tuple[int, int], z_target: float, cap: float
+) -> tuple[F64, F64]:
+    """(cost1, cost0) from heights z in σ (module docstring); the seed (u, v) is tied to the
+    target, invalid pixels cost nothing."""
+    cost0 = np.where(valid, np.minimum(cap, np.maximum(z, 0.0) ** 2 / 2.0), 0.0)
+    cost1 = np.where(valid, np.minimum(cap, np.maximum(z_target - z, 0.0) ** 2 / 2.0), 0.0)
+    u, v = seed
+    cost1[v, u] = 0.0
+    cost0[v, u] = cap * z.size  # more than any cut could save
+    return cost1, cost0
+
+
+def reached(mask: BOOL, xyz: F64, valid: BOOL, seed: tuple[int, int], reach_m: float) -> BOOL:
+    """The pixels of `mask` joined to the seed (u, v) by 8-neighbour steps within the mask
+    whose 3D distance is below `reach_m`."""
+    h, w = mask.shape
+    index = np.arange(h * w).reshape(h, w)
+    heads, tails = [], []
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices(mask.shape, k)
+        near = ((xyz[sp] - xyz[sq]) ** 2).sum(axis=-1) < reach_m**2
+        keep = mask[sp] & mask[sq] & valid[sp] & valid[sq] & near
+        heads.append(index[sp][keep])
+        tails.append(index[sq][keep])
+    i, j = np.concatenate(heads), np.concatenate(tails)
+    graph = coo_matrix((np.ones(i.size), (i, j)), shape=(h * w, h * w))
+    _, parts = connected_components(graph, directed=False)
+    u, v = seed
+    out: BOOL = mask & (parts.reshape(h, w) == parts[v * w + u])
+    return out
