@@ -15,11 +15,11 @@ from tofcut.sim.crowd import MAX_BOXES, crowd_scene, crowd_source, resized
 from tofcut.sim.preview import scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene
-from tofcut.tools.bench.report import markdown, targets
+from tofcut.tools.bench.report import best_energies, markdown, targets
 from tofcut.tools.bench.runner import STAGES, run_stage
-from tofcut.tools.bench.segment import INSTALL_HINT
 from tofcut.tools.bench.timing import fit_exponent, median_seconds, percentiles_ms
 from tofcut.tools.cli import main
+from tofcut.tools.experiments.grabcut import INSTALL_HINT
 
 
 def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, capsys):
@@ -30,7 +30,7 @@ def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, cap
     assert doc["meta"]["errors"] == {}
     assert doc["meta"]["quick"] is True
     verdicts = {t["what"]: t["verdict"] for t in doc["targets"]}
-    assert len(verdicts) == 7
+    assert len(verdicts) == 8
     assert set(verdicts.values()) <= {"PASS", "MISS"}  # every target measured, even quick
     stages = doc["stages"]
     assert [r["objects"] for r in stages["tracker"]["objects"]] == [1, 10]
@@ -70,7 +70,7 @@ def test_targets_not_run_are_reported_as_not_measured_not_as_a_verdict():
 def test_without_opencv_the_report_says_how_to_get_grabcut():
     meta = {"quick": True, "date": "d", "cpu_model": "c", "cpus": 2, "pinned_cpu": 1,
             "python": "3", "numpy": "2"}  # fmt: skip
-    row = {"scene": "s", "object": "o", "energy": "range-data", "data_term": True,
+    row = {"scene": "s", "object": "o", "energy": "range-data", "kind": "data-term",
            "reference_cut_s": 0.004, "fast_cut_s": 0.001, "cut_ratio": 4.0,
            "segment_reference_s": 0.005, "segment_fast_s": 0.002, "identical": True,
            "iou_fast": 0.5, "iou_reference": 0.5}  # fmt: skip
@@ -89,6 +89,25 @@ def test_verdicts_follow_the_numbers():
     got = {t.what: t.verdict for t in targets({"live": {"core_needed": 0.5, "dropped": 1}})}
     assert got["live pipeline at 50 fps with rerun file output"] == "MISS"
     assert got["live pipeline: frames dropped"] == "MISS"
+
+
+def test_grabcut_is_judged_against_the_best_energy_of_each_object():
+    def row(name, energy, ours, peer):
+        return {"scene": "s", "object": name, "energy": energy, "kind": "support",
+                "iou_fast": ours, "iou_grabcut": peer, "cut_ratio": 1.0}  # fmt: skip
+
+    rows = [row("a", "range-smooth", 0.5, 0.9), row("a", "support", 0.88, 0.9),
+            row("b", "support", 0.7, 0.6)]  # fmt: skip
+    best = best_energies(rows)
+    assert [(b[0], b[1], b[2]) for b in best] == [("s", "a", "support"), ("s", "b", "support")]
+    assert best[0][4] == pytest.approx(0.02)
+    assert best[1][4] == pytest.approx(-0.1)
+    what = "grabCut's lead over tofcut's best energy (every object)"
+    got = {t.what: t.verdict for t in targets({"segment": {"rows": rows}})}
+    assert got[what] == "PASS"
+    rows.append(row("c", "support", 0.8, 0.86))
+    got = {t.what: t.verdict for t in targets({"segment": {"rows": rows}})}
+    assert got[what] == "MISS"
 
 
 def test_fit_exponent_recovers_a_power_law():

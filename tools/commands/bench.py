@@ -18,7 +18,7 @@ import numpy as np
 from tofcut.tools.bench.plot import draw_scaling
 from tofcut.tools.bench.report import fits, markdown, targets, to_json
 from tofcut.tools.bench.runner import STAGES, bench_cpu, run_stage
-from tofcut.tools.bench.segment import INSTALL_HINT, have_opencv
+from tofcut.tools.experiments.grabcut import INSTALL_HINT, have_opencv
 
 DEFAULT_OUT = Path("tofcut-bench")
 
