@@ -16,8 +16,8 @@ from typing import Any
 
 from tofcut.driver.camera import Camera
 from tofcut.driver.conveyor.config import parse_conveyor_config
-from tofcut.driver.conveyor.toml_writer import dumps
 from tofcut.driver.errors import ConfigError, TofcutError
+from tofcut.driver.toml_writer import dumps
 from tofcut.tools.commands.options import add_camera_options, config_from_args
 from tofcut.tools.pipeline.sources import SourceError, SourceSpec, open_source
 from tofcut.tracker.belt_finder import BeltEstimate, find_belt
