@@ -315,6 +315,10 @@ def neighbour_step(grey: F64, valid: BOOL) -> float:
 
 
 # --- exact order statistics without a sort: medians and percentiles ---------------------------
+# `median` repeats `tracker.stats_kernels.median` on purpose: both give np.median's value (they
+# differ only in which sign a median of +0.0 and -0.0 takes), but this one bins a whole
+# frame's values (2.4x as fast as the tracker's quickselect on 25,000 values, 3.4x on 50,000),
+# and the tracker's is the faster on the few hundred values it takes at a time (1.9x on 500).
 
 MEDIAN_BINS = 4096
 """Bins of `_order_pair`'s histograms."""
