@@ -15,9 +15,9 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import Any, BinaryIO
 
+from tofcut._closing import Closing
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.demod import Optics, demodulate
 from tofcut.driver.errors import CaptureError, ProtocolError
@@ -60,16 +60,7 @@ class CaptureInfo:
 
 def capture_metadata(info: DeviceInfo, registers: dict[str, int], **extra: Any) -> dict[str, Any]:
     """The metadata a capture needs (spec §8), plus anything the recorder wants to keep."""
-    return {
-        "serial": info.serial_text,
-        "firmware": info.firmware,
-        "protocol": info.protocol,
-        "width": info.width,
-        "height": info.height,
-        "max_fps": info.max_fps,
-        "registers": registers,
-        **extra,
-    }
+    return {**info.described(), "registers": registers, **extra}
 
 
 CAMERA_KEYS = ("serial", "firmware", "protocol", "width", "height", "max_fps", "registers")
@@ -86,7 +77,7 @@ def bare_metadata(metadata: dict[str, Any]) -> dict[str, Any]:
     return {key: metadata[key] for key in CAMERA_KEYS if key in metadata}
 
 
-class CaptureWriter:
+class CaptureWriter(Closing):
     """Writes records as frames arrive; each record is flushed so a kill loses at most one."""
 
     def __init__(self, path: str | os.PathLike[str], metadata: dict[str, Any], calib: bytes):
@@ -105,17 +96,6 @@ class CaptureWriter:
     def close(self) -> None:
         if not self._file.closed:
             self._file.close()
-
-    def __enter__(self) -> CaptureWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _left(f: BinaryIO) -> int:
@@ -147,7 +127,7 @@ def _int_field(
     return value
 
 
-class CaptureReader:
+class CaptureReader(Closing):
     """A recorded camera: same `info`, `calibration`, `raw_frames()`, `frames()` as Camera."""
 
     def __init__(self, path: str | os.PathLike[str], *, amplitude_threshold: float = 0.0):
@@ -266,17 +246,6 @@ class CaptureReader:
 
     def close(self) -> None:
         """Nothing is held open between reads; here for symmetry with Camera."""
-
-    def __enter__(self) -> CaptureReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def bare_copy(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> int:

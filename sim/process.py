@@ -43,6 +43,7 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
 
+from tofcut._closing import Closing
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import DeviceInfo
 from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
@@ -75,7 +76,7 @@ class EmulatorProcessError(TofcutError):
     """The emulated camera's process did not start, or ended when it should not have."""
 
 
-class EmulatorProcess:
+class EmulatorProcess(Closing):
     """An emulated camera (`EmulatedCamera`) running in a child process; this is its proxy.
 
     `make_source` builds the scene in the child: it is pickled, so a module-level function
@@ -180,12 +181,6 @@ class EmulatorProcess:
         for fd in (self._shared_fd, self._stderr_fd):
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-    def __enter__(self) -> EmulatorProcess:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _died(self, what: str) -> EmulatorProcessError:
         """The error for a child that is gone: its exit status and the last line it wrote."""

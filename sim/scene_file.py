@@ -61,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from tofcut.driver.config_file import as_float, read_toml, unknown_keys
+from tofcut.driver.config_file import as_float, load_toml, unknown_keys
 from tofcut.driver.config_file import show as _show
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import MOD_FREQ_MHZ, check_sensor_size
@@ -491,17 +491,8 @@ def parse_scene(doc: Table, name: str = "scene") -> Scene:
 
 def load_scene(path: str | Path) -> Scene:
     """Read and build a scene file; `SceneError` (one line, naming the file) if it cannot be."""
-    p = Path(path)
-    try:
-        doc = read_toml(p, MAX_FILE_BYTES)
-    except OSError as exc:
-        raise SceneError(f"{p}: {exc.strerror or exc}") from None
-    except ValueError as exc:
-        raise SceneError(f"{p}: {exc}") from None
-    try:
-        return parse_scene(doc, p.stem)
-    except SceneError as exc:
-        raise SceneError(f"{p}: {exc}") from None
+    name = Path(path).stem
+    return load_toml(path, MAX_FILE_BYTES, lambda doc: parse_scene(doc, name), SceneError)
 
 
 def scene_toml(doc: Table, comment: str = "") -> str:

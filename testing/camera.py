@@ -16,9 +16,9 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Callable, Iterator
-from types import TracebackType
 from typing import Any, Protocol
 
+from tofcut._closing import Closing
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.camera import Camera
 from tofcut.driver.events import DeviceEvent
@@ -28,7 +28,7 @@ from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene import Scene
 from tofcut.sim.source import TapSource
-from tofcut.testing.common import Later, RigError, check_seconds
+from tofcut.testing.common import Later, RigError, check_seconds, end_all
 from tofcut.tools.pipeline.sources import Opened, SourceSpec, belt_of, open_source
 
 COUNTS = (
@@ -130,7 +130,7 @@ class FaultWindow:
         return [e.kind.value for e in self.events]
 
 
-class CameraRig:
+class CameraRig(Closing):
     """An emulated camera opened for a test (`emulated_camera`), its faults at hand."""
 
     def __init__(self, opened: Opened, *, scene: str, seed: int, realtime: bool) -> None:
@@ -303,24 +303,10 @@ class CameraRig:
         if self._closed:
             return
         self._closed = True
-        for later in self._pending:
-            later.cancel.set()
         try:
-            for later in self._pending:
-                later.join()
+            end_all(self._pending)
         finally:
             self.opened.close()  # the camera, then the emulator's process if it has one
-
-    def __enter__(self) -> CameraRig:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def emulated_camera(

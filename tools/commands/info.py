@@ -115,12 +115,7 @@ def info_json(args: argparse.Namespace) -> dict[str, Any]:
         out: dict[str, Any] = {
             "source": args.source.arg if args.source.kind == "capture" else str(args.source),
             "kind": "camera" if isinstance(dev, Camera) else "capture",
-            "serial": info.serial_text,
-            "firmware": info.firmware,
-            "protocol": info.protocol,
-            "width": info.width,
-            "height": info.height,
-            "max_fps": info.max_fps,
+            **info.described(),
             "configuration": None,
             "registers": {},
             "temperature_c": None,

@@ -298,6 +298,8 @@ def neighbour_distance(xyz: F64, valid: B) -> float:
 @numba.njit(cache=True)
 def neighbour_step(grey: F64, valid: B) -> float:
     """Median |g_p − g_q| between valid horizontal and vertical neighbours, grey levels."""
+    # walks the pairs as `neighbour_distance` does, on purpose: a compiled loop each, each
+    # with its own step in the innermost loop, rather than a call per pair into one walk
     h, w = valid.shape
     steps = np.empty(2 * h * w)
     n = 0
