@@ -45,7 +45,14 @@ from typing import Any
 
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import DeviceInfo
-from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
+from tofcut.sim.device import (
+    BulkOverflow,
+    BulkTimeout,
+    Detached,
+    EmulatedCamera,
+    ReplayEnded,
+    Stall,
+)
 from tofcut.sim.source import TapSource
 
 SHARED_BYTES = 8 << 20
@@ -99,6 +106,9 @@ class EmulatorProcess:
     ) -> None:
         self.source = source
         self.realtime = realtime
+        self.replay_done = threading.Event()
+        """Set when the camera replays a recording, has sent its last frame and was asked
+        for more (`EmulatedCamera.replay_done`)."""
         self._closed = False
         self._control_lock = threading.Lock()
         self._bulk_lock = threading.Lock()
@@ -325,6 +335,8 @@ class EmulatorProcess:
                     raise Detached from None
                 raise self._died("ended unexpectedly") from None
         if status == "raise":
+            if isinstance(value, ReplayEnded):
+                self.replay_done.set()
             raise value
         return int(value)
 

@@ -51,6 +51,12 @@ def add_camera_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="emulator: deliver frames as fast as they are read, not in real time",
     )
+    g.add_argument(
+        "--loop",
+        action="store_true",
+        help="emulator:FILE.tofcap: replay the capture over and over (default: the stream "
+        "ends with it)",
+    )
 
 
 def config_from_args(args: argparse.Namespace, current: CameraConfig) -> CameraConfig | None:

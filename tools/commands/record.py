@@ -32,7 +32,7 @@ from tofcut.tools.commands.progress import Progress
 from tofcut.tools.pipeline.belt_source import BeltResolution, resolve_run_belt, warn
 from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.pipeline.losses import describe_losses, stats_summary
-from tofcut.tools.pipeline.sources import Opened, SourceError, open_source
+from tofcut.tools.pipeline.sources import Opened, SourceError, configure, open_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -77,9 +77,7 @@ def run(args: argparse.Namespace) -> int:
     cam = opened.device
     assert isinstance(cam, Camera)
     with contextlib.closing(opened):  # the camera, and the emulator's process if any
-        asked = config_from_args(args, cam.config)
-        if asked is not None:
-            cam.configure(asked)
+        configure(opened, config_from_args(args, cam.config))
         resolution = resolve_run_belt(args, opened)
         for text in resolution.warnings:
             warn(text)
