@@ -85,9 +85,10 @@ class EmulatorProcessError(TofcutError):
 class EmulatorProcess:
     """An emulated camera (`EmulatedCamera`) running in a child process; this is its proxy.
 
-    `make_source` builds the scene in the child: it is pickled, so a module-level function
-    or a `functools.partial` of one. `source`, if given, is this process's copy of that
-    scene, for what the caller reads of it (metadata, the belt); nothing renders it here.
+    `make_source` builds the scene (or the `Recording` to replay) in the child: it is
+    pickled, so a module-level function or a `functools.partial` of one. `source`, if
+    given, is this process's copy of that scene, for what the caller reads of it
+    (metadata, the belt); nothing renders it here.
     The other arguments are `EmulatedCamera`'s. Close it (or use it as a context manager)
     to end the child; it also ends when this object is collected or the interpreter exits.
     """

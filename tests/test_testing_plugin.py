@@ -23,22 +23,27 @@ WAIT_S = 5.0
 """Upper bound of every wait; each returns as soon as its condition holds."""
 
 
-def example_tests() -> str:
-    """The example test docs/testing.md tells a user to copy (its first python block)."""
+def example_tests() -> tuple[str, str]:
+    """The example tests docs/testing.md tells a user to copy: the first python block, and
+    the one on a recording of the line (which runs with the first block's imports)."""
     text = (ROOT / "docs" / "testing.md").read_text()
-    (block, *_) = re.findall(r"```python\n(.*?)```", text, re.S)
-    return block
+    (block, recorded, *_) = re.findall(r"```python\n(.*?)```", text, re.S)
+    return block, recorded
 
 
 # --- the plugin as a user meets it ----------------------------------------------------------
 
 
-def test_the_documented_example_passes_in_a_project_of_its_own(pytester):
+def test_the_documented_examples_pass_in_a_project_of_their_own(pytester, capture):
     """pytest finds the plugin by its entry point, in a fresh process, as in a user's
-    project; the example in docs/testing.md passes there as it is written."""
-    pytester.makepyfile(test_line=example_tests())
+    project; the examples in docs/testing.md pass there as they are written (the recorded
+    line is the test pattern's capture)."""
+    block, recorded = example_tests()
+    (pytester.path / "tests" / "data").mkdir(parents=True)
+    (pytester.path / "tests" / "data" / "line.tofcap").write_bytes(capture.read_bytes())
+    pytester.makepyfile(test_line=block + "\n\n" + recorded)
     result = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
-    result.assert_outcomes(passed=len(re.findall(r"^def test_", example_tests(), re.M)))
+    result.assert_outcomes(passed=len(re.findall(r"^def test_", block + recorded, re.M)))
 
 
 def test_a_project_that_does_not_use_it_imports_nothing_of_tofcut(pytester):

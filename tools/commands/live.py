@@ -16,8 +16,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "live",
         help="track live from a camera (default: the emulated conveyor)",
-        description="Track live from usb, usb:SERIAL or emulator[:SCENE]. Without --frames or "
-        f"--seconds it runs {DEFAULT_SECONDS:g} s; --seconds 0 runs until Ctrl-C.",
+        description="Track live from usb, usb:SERIAL or emulator[:SCENE] (emulator:FILE.tofcap: "
+        "the emulated camera replays a capture). Without --frames or --seconds it runs "
+        f"{DEFAULT_SECONDS:g} s (a replay: at most to the capture's end); --seconds 0 runs "
+        "until Ctrl-C.",
     )
     add_source_argument(p, default="emulator", captures=False)
     add_tracking_options(
@@ -30,7 +32,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.source.kind == "capture":
-        raise SourceError("live reads from a camera; use 'tofcut track FILE.tofcap' for captures")
+        raise SourceError(
+            "live reads from a camera; use 'tofcut track FILE.tofcap' for captures, or "
+            "'tofcut live emulator:FILE.tofcap' to replay one through the emulated camera"
+        )
     if args.seconds == 0:
         args.seconds = None
         args.default_seconds = None

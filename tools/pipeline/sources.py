@@ -13,6 +13,7 @@ import functools
 import os
 import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -117,23 +118,28 @@ class Opened:
 class EndOfReplay:
     """Ends a replaying camera's stream with its capture: a thread waits for the emulated
     camera's `replay_done` (its last frame sent, and more asked for) and stops the camera,
-    so that `frames()` ends there as `CaptureReader.frames()` does."""
+    so that `frames()` ends there as `CaptureReader.frames()` does. It holds the camera
+    weakly: a camera dropped unclosed (`tofcut.open`) is still collected, its emulator's
+    process with it, and the thread ends."""
 
     def __init__(self, camera: Camera, done: threading.Event) -> None:
-        self._camera = camera
+        self._camera = weakref.ref(camera)
         self._done = done
         self._closing = False
+        weakref.finalize(camera, done.set)
         self._thread = threading.Thread(target=self._run, name="tofcut-replay-end", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         while True:
             self._done.wait()
-            if self._closing:
+            camera = self._camera()
+            if self._closing or camera is None:
                 return
             self._done.clear()
             with contextlib.suppress(TofcutError):  # gone meanwhile: the reading ends anyway
-                self._camera.stop()
+                camera.stop()
+            del camera
 
     def close(self) -> None:
         self._closing = True
