@@ -118,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
 def belt_metadata(opened: Opened, resolution: BeltResolution) -> dict[str, Any]:
     """The source's metadata for the capture, with the belt the run knows at its start (and
     where it came from) in place of the scene's own."""
-    meta = {k: v for k, v in opened.metadata.items() if k not in ("belt", "belt_source")}
+    kept_here = ("belt", "belt_source", "source")  # (a replayed capture's own are replaced)
+    meta = {k: v for k, v in opened.metadata.items() if k not in kept_here}
     if resolution.belt is not None:
         meta["belt"] = resolution.belt.to_dict()
         meta["belt_source"] = resolution.belt.source
