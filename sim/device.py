@@ -460,6 +460,8 @@ class EmulatedCamera:
         self._power_on = now
         self._virtual_us = 0
         self._regs = dict(RESET_VALUES)
+        if self._recording is not None:  # it powers on as the recording was made
+            self._regs.update(self._recording.registers)
         self._next_seq = 0
         self._clock_start_us = 0
         self._clock_index = 0

@@ -254,3 +254,23 @@ def test_recording_a_replay_gives_the_capture_back_byte_for_byte(capture, tmp_pa
     assert len(wires[1]) == FRAMES
     assert wires[0] == wires[1]
     assert CaptureReader(copy).capture.metadata["source"] == f"emulator:{capture}"
+
+
+def test_frames_the_recording_lost_are_numbered_and_lost_again(capture, tmp_path):
+    data = capture.read_bytes()
+    start = CaptureReader(capture)._records_start
+    record = (len(data) - start) // FRAMES
+    gappy = tmp_path / "gappy.tofcap"  # records 10-12 never reached the recorder
+    gappy.write_bytes(data[: start + 10 * record] + data[start + 13 * record :])
+    reader = CaptureReader(gappy)
+    expected = [raw.sequence for raw in reader.raw_frames()]
+    opened = replay(gappy)
+    try:
+        got = [raw.sequence for raw in opened.device.raw_frames()]
+        stats = opened.device.stats
+    finally:
+        opened.close()
+    assert got == expected == [*range(10), *range(13, FRAMES)]
+    assert (
+        (stats.lost, stats.gaps[-1]) == (reader.stats.lost, reader.stats.gaps[-1]) == (3, (10, 12))
+    )

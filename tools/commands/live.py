@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 
-from tofcut.tools.commands.options import add_camera_options, add_source_argument
+from tofcut.tools.commands.options import (
+    add_camera_options,
+    add_loop_option,
+    add_source_argument,
+)
 from tofcut.tools.commands.tracking import add_tracking_options, track
 from tofcut.tools.pipeline.conveyor_line import add_conveyor_options
 from tofcut.tools.pipeline.sources import SourceError
@@ -26,6 +30,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         p, seconds_help=f"stop after this long (default {DEFAULT_SECONDS:g}; 0: until Ctrl-C)"
     )
     add_camera_options(p)
+    add_loop_option(p)
     add_conveyor_options(p)
     p.set_defaults(func=run, default_seconds=DEFAULT_SECONDS)
 

@@ -51,7 +51,11 @@ def add_camera_options(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="emulator: deliver frames as fast as they are read, not in real time",
     )
-    g.add_argument(
+
+
+def add_loop_option(parser: argparse.ArgumentParser) -> None:
+    """`--loop`, for the commands that stream a replayed capture (`live`, `track`, `record`)."""
+    parser.add_argument(
         "--loop",
         action="store_true",
         help="emulator:FILE.tofcap: replay the capture over and over (default: the stream "

@@ -27,7 +27,12 @@ from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.truth import FrameTruth, save_truth, truth_path
 from tofcut.tools.commands.arguments import output_file, positive_float, positive_int
-from tofcut.tools.commands.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.commands.options import (
+    add_camera_options,
+    add_loop_option,
+    add_source_argument,
+    config_from_args,
+)
 from tofcut.tools.commands.progress import Progress
 from tofcut.tools.pipeline.belt_source import BeltResolution, resolve_run_belt, warn
 from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_options, open_conveyor
@@ -54,6 +59,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "is still written beside the capture",
     )  # fmt: skip
     add_camera_options(p)
+    add_loop_option(p)
     add_conveyor_options(p, rejects=False)
     p.set_defaults(func=run)
 
@@ -72,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
         args.source, realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=args.reconnect,
         on_event=_print_event if args.reconnect else None,
-        virtual_host_clock=not (args.conveyor or args.conveyor_emulator),
+        virtual_host_clock=not (args.conveyor or args.conveyor_emulator), loop=args.loop,
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)

@@ -45,7 +45,6 @@ from tofcut.tools.pipeline.sources import (
     SourceError,
     SourceSpec,
     configure,
-    names_capture,
     open_source,
 )
 from tofcut.tracker.tracker import Tracker
@@ -137,7 +136,7 @@ def soak(args: argparse.Namespace) -> int:
     opened = open_source(
         SourceSpec("emulator", args.scene), realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=True, on_event=relay.post,
-        loop=names_capture(args.scene),
+        loop=True,  # a capture replays for as long as the soak runs
     )  # fmt: skip
     camera = opened.device
     assert isinstance(camera, Camera)

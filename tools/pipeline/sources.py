@@ -103,6 +103,7 @@ class Opened:
     replay: ReplayIndex | None = None
     """The capture the emulated camera replays (`emulator:FILE.tofcap`), else None."""
     end_of_replay: EndOfReplay | None = None
+    """What stops the camera's stream when the replayed capture ends."""
 
     def close(self) -> None:
         """Close the device, then end the emulator's process if it has one."""
