@@ -13,6 +13,7 @@ import pytest
 from tofcut.driver.capture import CaptureReader, bare_copy
 from tofcut.driver.errors import CaptureError, RequestRejected
 from tofcut.driver.protocol import HEADER_SIZE, Register
+from tofcut.sim.process import EmulatorProcess
 from tofcut.sim.replay import read_index
 from tofcut.tools.cli import main
 from tofcut.tools.pipeline.sources import Opened, SourceSpec, open_source
@@ -274,3 +275,16 @@ def test_frames_the_recording_lost_are_numbered_and_lost_again(capture, tmp_path
     assert (
         (stats.lost, stats.gaps[-1]) == (reader.stats.lost, reader.stats.gaps[-1]) == (3, (10, 12))
     )
+
+
+def test_in_real_time_the_replay_runs_in_a_process_of_its_own_and_ends(capture):
+    opened = open_source(SourceSpec.parse(f"emulator:{capture}"), realtime=True)
+    emulator = opened.emulator
+    assert isinstance(emulator, EmulatorProcess)
+    try:
+        frames = list(opened.device.raw_frames())  # ends with the capture, by itself
+    finally:
+        opened.close()
+    assert [raw.header.payload_crc for raw in frames] == payloads(capture)
+    assert emulator.replay_done.is_set()
+    assert emulator.exit_status is not None  # closing ended the process
