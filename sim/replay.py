@@ -47,6 +47,9 @@ from tofcut.driver.protocol import (
 from tofcut.sim.device import frame_period_us, register_value_ok
 from tofcut.sim.source import Exposure, Rendered, Take
 
+MAX_GAP = 1 << 20
+"""The most frames a recording may have lost between two of its records (over 5 hours at
+50 fps): more is damage, and a replay would number them one by one."""
 _FROM_FRAMES = (Register.MOD_FREQ, Register.INTEGRATION)
 """Registers every frame's header also gives: each frame must agree with the capture's."""
 
@@ -147,6 +150,12 @@ def read_index(path: str | os.PathLike[str]) -> ReplayIndex:
             run = raw.sequence + parser.stats.sequence_offset
             if base is None:
                 base = run - slot
+            if run - base - slot > MAX_GAP:
+                raise CaptureError(
+                    f"record {len(offsets)} says {run - base - slot} frames were lost before "
+                    f"it (its sequence number or host time is damaged): a replay numbers at "
+                    f"most {MAX_GAP}"
+                )
             slot = max(slot, run - base)
         offsets.append(record.offset)
         slots.append(slot)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import threading
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 
 from tofcut.driver.capture import CaptureReader, bare_copy
 from tofcut.driver.errors import CaptureError, RequestRejected
-from tofcut.driver.protocol import HEADER_SIZE, Register
+from tofcut.driver.protocol import HEADER_SIZE, Register, pack_header, parse_header
 from tofcut.sim.process import EmulatorProcess
 from tofcut.sim.replay import read_index
 from tofcut.tools.cli import main
@@ -288,3 +289,18 @@ def test_in_real_time_the_replay_runs_in_a_process_of_its_own_and_ends(capture):
     assert [raw.header.payload_crc for raw in frames] == payloads(capture)
     assert emulator.replay_done.is_set()
     assert emulator.exit_status is not None  # closing ended the process
+
+
+def test_a_gap_no_recording_could_have_is_one_line(capture, tmp_path):
+    """A frame whose sequence number says 2^30 frames were lost before it (its header and
+    CRCs made whole again) would be numbered one by one: it is refused."""
+    data = bytearray(capture.read_bytes())
+    start = CaptureReader(capture)._records_start
+    record = (len(data) - start) // FRAMES
+    at = start + 5 * record + RECORD  # record 5's frame header
+    header = parse_header(bytes(data[at : at + HEADER_SIZE]))
+    data[at : at + HEADER_SIZE] = pack_header(replace(header, sequence=header.sequence + (1 << 30)))
+    odd = tmp_path / "odd.tofcap"
+    odd.write_bytes(bytes(data))
+    with pytest.raises(CaptureError, match=r"record 5 says 1073741824 frames were lost"):
+        read_index(odd)
