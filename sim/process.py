@@ -46,7 +46,14 @@ from typing import Any
 from tofcut._closing import Closing
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import DeviceInfo
-from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
+from tofcut.sim.device import (
+    BulkOverflow,
+    BulkTimeout,
+    Detached,
+    EmulatedCamera,
+    ReplayEnded,
+    Stall,
+)
 from tofcut.sim.source import TapSource
 
 SHARED_BYTES = 8 << 20
@@ -79,9 +86,10 @@ class EmulatorProcessError(TofcutError):
 class EmulatorProcess(Closing):
     """An emulated camera (`EmulatedCamera`) running in a child process; this is its proxy.
 
-    `make_source` builds the scene in the child: it is pickled, so a module-level function
-    or a `functools.partial` of one. `source`, if given, is this process's copy of that
-    scene, for what the caller reads of it (metadata, the belt); nothing renders it here.
+    `make_source` builds the scene (or the `Recording` to replay) in the child: it is
+    pickled, so a module-level function or a `functools.partial` of one. `source`, if
+    given, is this process's copy of that scene, for what the caller reads of it
+    (metadata, the belt); nothing renders it here.
     The other arguments are `EmulatedCamera`'s. Close it (or use it as a context manager)
     to end the child; it also ends when this object is collected or the interpreter exits.
     """
@@ -100,6 +108,9 @@ class EmulatorProcess(Closing):
     ) -> None:
         self.source = source
         self.realtime = realtime
+        self.replay_done = threading.Event()
+        """Set when the camera replays a recording, has sent its last frame and was asked
+        for more (`EmulatedCamera.replay_done`)."""
         self._closed = False
         self._control_lock = threading.Lock()
         self._bulk_lock = threading.Lock()
@@ -320,6 +331,8 @@ class EmulatorProcess(Closing):
                     raise Detached from None
                 raise self._died("ended unexpectedly") from None
         if status == "raise":
+            if isinstance(value, ReplayEnded):
+                self.replay_done.set()
             raise value
         return int(value)
 
