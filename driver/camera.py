@@ -265,8 +265,12 @@ class Camera(Closing):
         """Read slices of at most READ_SLICE_MS until a frame is whole; None when cancelled."""
         deadline = time.monotonic() + timeout_ms / 1000.0
         waited_ms = 0
-        while not self._ready:
+        while True:
             with self._io:
+                # taken under the lock: `stop` from another thread clears the queue
+                if self._ready:
+                    raw = self._ready.popleft()
+                    break
                 if cancellable and self._cancel.is_set():
                     return None
                 slice_ms = max(1, min(READ_SLICE_MS, timeout_ms - waited_ms))
@@ -285,7 +289,7 @@ class Camera(Closing):
                 raise DeviceTimeout(f"no frame within {timeout_ms} ms", errno.ETIMEDOUT)
         self._silent_ms = 0
         self._stalls_in_a_row = 0
-        return self._ready.popleft()
+        return raw
 
     def raw_frames(
         self, count: int | None = None, timeout_ms: int = DEFAULT_READ_TIMEOUT_MS
