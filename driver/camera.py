@@ -18,9 +18,9 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from types import TracebackType
 from typing import Any
 
+from tofcut._closing import Closing
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.config import FRAME_PERIOD_UNIT_S, CameraConfig, TriggerMode
 from tofcut.driver.demod import Optics, demodulate
@@ -67,7 +67,7 @@ def list_cameras(
     ]
 
 
-class Camera:
+class Camera(Closing):
     """One opened camera.
 
     Frames are read on one thread; `stop()`, `close()` and `stats` may be used from any
@@ -265,8 +265,12 @@ class Camera:
         """Read slices of at most READ_SLICE_MS until a frame is whole; None when cancelled."""
         deadline = time.monotonic() + timeout_ms / 1000.0
         waited_ms = 0
-        while not self._ready:
+        while True:
             with self._io:
+                # taken under the lock: `stop` from another thread clears the queue
+                if self._ready:
+                    raw = self._ready.popleft()
+                    break
                 if cancellable and self._cancel.is_set():
                     return None
                 slice_ms = max(1, min(READ_SLICE_MS, timeout_ms - waited_ms))
@@ -285,7 +289,7 @@ class Camera:
                 raise DeviceTimeout(f"no frame within {timeout_ms} ms", errno.ETIMEDOUT)
         self._silent_ms = 0
         self._stalls_in_a_row = 0
-        return self._ready.popleft()
+        return raw
 
     def raw_frames(
         self, count: int | None = None, timeout_ms: int = DEFAULT_READ_TIMEOUT_MS
@@ -477,14 +481,3 @@ class Camera:
             self.streaming = False
             self._usb.close()
             self._connected = False
-
-    def __enter__(self) -> Camera:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

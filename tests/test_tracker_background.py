@@ -94,3 +94,46 @@ def test_a_belt_lying_within_the_noise_of_the_scenery_leaves_it_nearly_as_learne
     model.hold_belt(frame, raised, noise)
     changed = np.nan_to_num(model.range) != np.nan_to_num(before)
     assert changed.mean() < 0.01, changed.mean()
+
+
+def _reading(frame, rays, rng, where):
+    """`frame` with the pixels `where` reading `rng` along their rays."""
+    out = np.where(where, rng, frame.range)
+    return dataclasses.replace(frame, range=out, xyz=rays * out[..., None])
+
+
+def test_an_object_in_front_of_scenery_whose_phase_wrapped_round_stands_out():
+    """Past the belt the floor can lie beyond the camera's unambiguous range: it reads near.
+    An object on the belt in front of it reads farther than that scenery, not nearer."""
+    model, frame, noise, belt = _learned()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays = frame.xyz / frame.range[..., None]
+    surface = belt.range_along(rays)
+    over = model.known & frame.valid & np.isfinite(surface)
+    rows = np.nonzero(over.any(axis=1))[0]
+    wrapped = over.copy()
+    wrapped[rows[len(rows) // 3] :] = False  # the far third of the belt's rows
+    model.range[wrapped] = 0.3  # far floor, read 0.3 m away: high over the belt
+    model.sigma[wrapped] = 0.1  # and loud, as far and dark surfaces are
+    model.clear_belt(frame, belt)
+    assert model._wrapped[wrapped].all()
+    assert not model._wrapped[over & ~wrapped].any()
+
+    lifted = dataclasses.replace(belt, point=belt.point + 0.1 * belt.normal, width_m=None)
+    box = _reading(frame, rays, lifted.range_along(rays), wrapped)  # 10 cm above the belt
+    assert model.standing_out(box)[wrapped].all()
+    nearer, _ = model.weighed_nearness(box)
+    assert (nearer[wrapped] > 0.5).all()
+
+    # the wrapped floor again, and the belt itself read behind wrapped scenery: no object
+    again = _reading(frame, rays, np.full(frame.shape, 0.3), wrapped)
+    assert not model.standing_out(again)[wrapped].any()
+    flat = _reading(frame, rays, surface, wrapped)
+    assert not model.standing_out(flat)[wrapped].any()
+    # over scenery that did not wrap, reading farther is never something standing there
+    assert not model.standing_out(_reading(frame, rays, surface + 0.5, over))[over].any()
+
+    # nor does the model move back to it, as it does where scenery turns out farther
+    for _ in range(model.params.reveal_frames + 2):
+        model.update(box, np.ones(frame.shape, bool), noise, np.zeros((0, 3)), 0.05)
+    np.testing.assert_array_equal(model.range[wrapped], 0.3)

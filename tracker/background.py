@@ -64,6 +64,11 @@ REGION_SIGMAS = 6.0
 REGION_HEIGHT_SHARE = 0.5
 """...and at least this share of `min_height_sigmas` of its pixels' noise: half the height
 of the lowest object to be found, so that its pixels, not the belt's round it, pass."""
+WRAPPED_SIGMAS = 6.0
+"""Over scenery whose phase wrapped round, a pixel reads an object behind it where it reads
+farther than the scenery by this many of the scenery's noise sigmas..."""
+WRAPPED_STEP_M = 0.3
+"""...and by this much."""
 
 
 @dataclass(frozen=True)
@@ -128,6 +133,10 @@ class BackgroundModel:
         self._cleared_range: F64 = np.full(shape, np.nan)
         """The scenery as the last `clear_belt` left it, and what `absorb` took in since: what
         `hold_belt` holds it to."""
+        self._wrapped: B = np.zeros(shape, bool)
+        """Scenery read near though it is far (its phase wrapped round: `clear_belt`)..."""
+        self._wrapped_belt: BeltGeometry | None = None
+        """...over this belt (the heights of what is read in front of it are measured from it)."""
 
         self.ready = False
         """True once the learning frames are in."""
@@ -193,6 +202,15 @@ class BackgroundModel:
         self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
         self._laid_range = np.where(fix, self.range, np.nan)
         self._cleared_range = np.where(self.known, self.range, np.nan)
+        # scenery standing higher over the belt than anything on it can is a far surface
+        # (the floor past the belt, seen at a slant) read near because its phase wrapped
+        # round: what stands in front of it reads farther than it (`seen_range`)
+        with np.errstate(invalid="ignore"):
+            scenery = rays * self.range[..., None]
+            self._wrapped = (
+                self.known & np.isfinite(scenery).all(axis=-1) & ~on_belt_height(scenery, belt)
+            )
+        self._wrapped_belt = belt
 
     def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
         """Over a running belt of known width nothing stands still: where the scenery has come
@@ -231,25 +249,51 @@ class BackgroundModel:
         """Pixels nearer than the scenery by more than the noise allows: something is there."""
         p = self.params
         with np.errstate(invalid="ignore"):
-            nearer = self.range - frame.range
+            nearer = self.range - self.seen_range(frame)
             out = (nearer > p.noise_factor * self.sigma) & (nearer > p.min_height_m)
         return out & frame.valid & self.known
 
     def nearness(self, frame: Frame) -> F64:
         """How far in front of the scenery each pixel is, in its own noise sigmas (0 unknown)."""
         with np.errstate(invalid="ignore"):
-            z = (self.range - frame.range) / self.sigma
+            z = (self.range - self.seen_range(frame)) / self.sigma
         return np.where(frame.valid & self.known, z, 0.0)
+
+    def seen_range(self, frame: Frame) -> F64:
+        """The frame's ranges as the scenery is to be compared with: as read, except over
+        scenery whose phase wrapped round (`clear_belt`), where a pixel that reads well
+        behind it at the height of something on the belt reads an object in front of the far
+        surface; there, a range as far in front of the scenery as it read behind it."""
+        belt = self._wrapped_belt
+        if belt is None:
+            return frame.range
+        with np.errstate(invalid="ignore"):
+            behind = frame.range - self.range
+            far = (
+                self._wrapped
+                & frame.valid
+                & (behind > np.maximum(WRAPPED_SIGMAS * self.sigma, WRAPPED_STEP_M))
+            )
+        if not far.any():
+            return frame.range
+        points = frame.xyz[far]
+        with np.errstate(invalid="ignore"):
+            lifted = (belt.height(points) > self.params.min_height_m) & on_belt_height(points, belt)
+        rows, cols = np.nonzero(far)
+        rows, cols = rows[lifted], cols[lifted]
+        seen = frame.range.copy()
+        seen[rows, cols] = self.range[rows, cols] - behind[rows, cols]
+        return seen
 
     def weighed_nearness(self, frame: Frame) -> tuple[F64, F64]:
         """What the background's cost weighs: each pixel's nearness (metres in front of the
-        scenery, 0 where unknown or invalid) and its noise; where the noise is so loud that
-        the lowest object (`min_height_sigmas`) would not stand out pixel by pixel, the
-        median of the 3×3 neighbourhood instead (a step's edge stays where it is), with
-        that median's smaller noise."""
+        scenery, 0 where unknown or invalid; `seen_range`) and its noise; where the noise is
+        so loud that the lowest object (`min_height_sigmas`) would not stand out pixel by
+        pixel, the median of the 3×3 neighbourhood instead (a step's edge stays where it is),
+        with that median's smaller noise."""
         usable = frame.valid & self.known
         with np.errstate(invalid="ignore"):
-            nearer = np.where(usable, self.range - frame.range, 0.0)
+            nearer = np.where(usable, self.range - self.seen_range(frame), 0.0)
         p = self.params
         loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
         if not loud.any():
@@ -272,7 +316,7 @@ class BackgroundModel:
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
         background_kernels.follow_scene(
             self.range, self.sigma, self.known, self._farther, self._farther_min,
-            self._unknown_seen, self._unknown_reads, frame.range, frame.valid, usable,
+            self._unknown_seen, self._unknown_reads, self.seen_range(frame), frame.valid, usable,
             near_any(frame.xyz, due, occupied, reach),
             noise, p.noise_factor, p.rate, p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS,
             BLEND_VARIANCE_SHARE,

@@ -57,12 +57,13 @@ class Pieces:
         numbered from 1."""
         bg = background
         q = bg.params
+        seen = bg.seen_range(frame)
         body = background_kernels.standing_out(
-            bg.range, bg.sigma, bg.known, frame.range, frame.valid, labels, q.noise_factor,
+            bg.range, bg.sigma, bg.known, seen, frame.valid, labels, q.noise_factor,
             q.min_height_m,
         )  # fmt: skip
         body |= standing_regions(
-            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), frame.range, q
+            bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), seen, q
         )
         if self.params.rigid and belt is not None:
             body[body] = on_belt_height(frame.xyz[body], belt)

@@ -78,15 +78,16 @@ class ReferenceBackground(BackgroundModel):
     def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
         p = self.params
         usable = free & frame.valid
+        seen = self.seen_range(frame)
         with np.errstate(invalid="ignore"):
-            deviation = frame.range - self.range
+            deviation = seen - self.range
             farther = frame.valid & (deviation > p.noise_factor * self.sigma)
         self._farther = np.where(farther, self._farther + 1, 0)
-        self._farther_min = np.where(farther, np.fmin(self._farther_min, frame.range), np.inf)
+        self._farther_min = np.where(farther, np.fmin(self._farther_min, seen), np.inf)
         unknown = usable & ~self.known
         slot = self._unknown_seen % p.reveal_frames
         rows, cols = np.nonzero(unknown)
-        self._unknown_reads[slot[rows, cols], rows, cols] = frame.range[rows, cols]
+        self._unknown_reads[slot[rows, cols], rows, cols] = seen[rows, cols]
         self._unknown_seen = np.where(unknown, self._unknown_seen + 1, 0)
         newly = self._unknown_seen >= p.reveal_frames
         newly &= ~near_any(frame.xyz, newly, occupied, reach)
@@ -205,7 +206,7 @@ class ReferencePieces(Pieces):
         bg = background
         usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
-        body |= standing_regions(bg.range, bg.sigma, usable, frame.range, bg.params)
+        body |= standing_regions(bg.range, bg.sigma, usable, bg.seen_range(frame), bg.params)
         if self.params.rigid and belt is not None:
             body &= on_belt_height(frame.xyz, belt)
         return self.split(frame, body, noise, belt)

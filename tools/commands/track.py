@@ -5,7 +5,11 @@ from __future__ import annotations
 
 import argparse
 
-from tofcut.tools.commands.options import add_camera_options, add_source_argument
+from tofcut.tools.commands.options import (
+    add_camera_options,
+    add_loop_option,
+    add_source_argument,
+)
 from tofcut.tools.commands.tracking import add_tracking_options, track
 from tofcut.tools.pipeline.conveyor_line import add_conveyor_options
 
@@ -15,5 +19,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_source_argument(p)
     add_tracking_options(p)
     add_camera_options(p)
+    add_loop_option(p)
     add_conveyor_options(p)
     p.set_defaults(func=lambda a: track(a, live=a.source.kind != "capture"))

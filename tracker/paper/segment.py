@@ -17,17 +17,14 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.driver.frames import Frame
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.paper import energy as en
 from tofcut.tracker.paper import support as sp
 from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
 from tofcut.tracker.paper.support import Plane
-
-BOOL = npt.NDArray[np.bool_]
 
 NOISE_WINDOW = 4
 """Half-size of the window round the target's pixel whose range noise σr is measured."""
@@ -200,7 +197,7 @@ class Model:
 class Segmentation:
     """The minimum found: the target's mask, its energy, and how long it took."""
 
-    mask: BOOL
+    mask: B
     """(H, W), True on the target."""
     energy: float
     """E of the mask: the minimum of the energy (SUPPORT: of the minimum's part kept)."""
@@ -231,7 +228,7 @@ def segment(
 def segment_arrays(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     target: Target,
     energy: Energy,
     params: SegmentParams | None = None,
@@ -267,7 +264,7 @@ def segment_arrays(
     )
 
 
-def _check_arrays(intensity: F64, xyz: F64, valid: BOOL) -> None:
+def _check_arrays(intensity: F64, xyz: F64, valid: B) -> None:
     if intensity.ndim != 2 or intensity.size == 0:
         raise SegmentError(f"intensity must be a non-empty (H, W) array, not {intensity.shape}")
     if valid.shape != intensity.shape or xyz.shape != (*intensity.shape, 3):
@@ -282,7 +279,7 @@ def _check_arrays(intensity: F64, xyz: F64, valid: BOOL) -> None:
 def estimate_model(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     target: Target,
     energy: Energy,
     params: SegmentParams,
@@ -363,7 +360,7 @@ def estimate_model(
 def build_problem(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     energy: Energy,
     params: SegmentParams,
     model: Model,

@@ -21,15 +21,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from tofcut._types import F64
+from tofcut._types import F64, I64, B
 from tofcut.tracker.neighbours import OFFSETS, pair_slices
 from tofcut.tracker.stats import robust_sigma
-
-BOOL = npt.NDArray[np.bool_]
 
 MIN_SHARE = 0.08
 """A plane holds at least this share of the valid pixels to count as a support."""
@@ -78,7 +75,7 @@ def fit_plane(points: F64) -> tuple[F64, float]:
     return n, float(n @ centre)
 
 
-def find_planes(xyz: F64, valid: BOOL, scale_m: float) -> list[Plane]:
+def find_planes(xyz: F64, valid: B, scale_m: float) -> list[Plane]:
     """The large, coherent planes of a frame, largest first. `scale_m` (the median distance
     between neighbours' points) sets the first inlier band; each plane's own noise the next."""
     points = xyz[valid]
@@ -115,9 +112,7 @@ def find_planes(xyz: F64, valid: BOOL, scale_m: float) -> list[Plane]:
     return planes
 
 
-def _ransac(
-    points: F64, idx: npt.NDArray[np.int64], band: float, rng: np.random.Generator
-) -> tuple[F64, float]:
+def _ransac(points: F64, idx: I64, band: float, rng: np.random.Generator) -> tuple[F64, float]:
     """The plane through three of the points `idx` that holds most of a sample of them."""
     picks = idx[rng.integers(0, idx.size, (TRIES, 3))]
     a, b, c = points[picks[:, 0]], points[picks[:, 1]], points[picks[:, 2]]
@@ -132,7 +127,7 @@ def _ransac(
     return normals[k], float(offsets[k])
 
 
-def _coherence(on: BOOL) -> float:
+def _coherence(on: B) -> float:
     """Share of the True pixels whose four neighbours are True too."""
     inner = on.copy()
     inner[1:] &= on[:-1]
@@ -157,7 +152,7 @@ def heights(xyz: F64, planes: tuple[Plane, ...]) -> F64:
 
 
 def support_costs(
-    z: F64, valid: BOOL, seed: tuple[int, int], z_target: float, cap: float
+    z: F64, valid: B, seed: tuple[int, int], z_target: float, cap: float
 ) -> tuple[F64, F64]:
     """(cost1, cost0) from heights z in σ (module docstring); the seed (u, v) is tied to the
     target, invalid pixels cost nothing."""
@@ -169,7 +164,7 @@ def support_costs(
     return cost1, cost0
 
 
-def reached(mask: BOOL, xyz: F64, valid: BOOL, seed: tuple[int, int], reach_m: float) -> BOOL:
+def reached(mask: B, xyz: F64, valid: B, seed: tuple[int, int], reach_m: float) -> B:
     """The pixels of `mask` joined to the seed (u, v) by 8-neighbour steps within the mask
     whose 3D distance is below `reach_m`."""
     h, w = mask.shape
@@ -185,5 +180,5 @@ def reached(mask: BOOL, xyz: F64, valid: BOOL, seed: tuple[int, int], reach_m: f
     graph = coo_matrix((np.ones(i.size), (i, j)), shape=(h * w, h * w))
     _, parts = connected_components(graph, directed=False)
     u, v = seed
-    out: BOOL = mask & (parts.reshape(h, w) == parts[v * w + u])
+    out: B = mask & (parts.reshape(h, w) == parts[v * w + u])
     return out
