@@ -376,10 +376,15 @@ class Aggregate:
     @classmethod
     def of_runs(cls, tracker: str, results: Sequence[LineResult]) -> Aggregate:
         scores = [s for r in results if (run := r.run(tracker)) and (s := run.scores)]
+        return cls.of_scores(tracker, scores, len(results))
+
+    @classmethod
+    def of_scores(cls, tracker: str, scores: Sequence[Scores], of: int) -> Aggregate:
+        """Over the runs that were scored, of `of` in all."""
         if not scores:
-            return cls(tracker, 0, len(results), None, None, None)
+            return cls(tracker, 0, of, None, None, None)
         return cls(
-            tracker, len(scores), len(results),
+            tracker, len(scores), of,
             FamilyScore.of([s.by_centroid for s in scores]),
             FamilyScore.of([s.by_iou for s in scores]),
             float(np.mean([s.mask_iou for s in scores])),
