@@ -28,6 +28,10 @@ FORBIDDEN = [
     ("tofcut.tools.bench", "tofcut.tools.commands"),
     ("tofcut.tools.evaluation", "tofcut.tools.commands"),
     ("tofcut.tools.experiments", "tofcut.tools.commands"),
+    # batches run the steps that commands and evaluation give them, knowing none of them
+    ("tofcut.tools.pipeline", "tofcut.tools.batch"),
+    ("tofcut.tools.batch", "tofcut.tools.commands"),
+    ("tofcut.tools.batch", "tofcut.tools.evaluation"),
     # the multi-object tracker does not use the paper's single-target segmentation
     ("tofcut.tracker.tracker", "tofcut.tracker.paper"),
     # testing (the pytest plugin) is on top, beside the commands: nothing imports it, and it

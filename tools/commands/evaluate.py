@@ -78,7 +78,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--per-object", action="store_true", help="also a line per object (masks)")
     p.add_argument("--json", type=output_file, help="also write every number here")
-    family.add_family_options(p)
+    family.add_family_options(
+        p, "a family of lines (instead of CAPTURE --tracks --masks)", tasks="lines (or runs)"
+    )
     p.set_defaults(func=run)
 
 

@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "tracker.beta=2,2.5,3 or tracker.background.rate=0.01,0.02); several make a grid",
     )  # fmt: skip
     p.add_argument("--json", type=output_file, help="also write the JSON document here")
-    family.add_family_options(p, trackers=False)
+    family.add_family_options(p, "the family of lines", trackers=False)
     p.set_defaults(func=run, gate=GATE_M, min_pixels=MIN_PIXELS, min_iou=MIN_IOU)
 
 

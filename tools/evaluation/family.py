@@ -14,8 +14,9 @@ noise seeds. For each line:
    --tracks-out ... --masks-out ...`, and `python -m tofcut.tools.evaluation.baseline CAPTURE ...`;
 3. score each run both ways (`tofcut.tools.evaluation.scoring`).
 
-Lines run in parallel processes (`--workers`). A line that fails is reported with its seed
-and the error, and makes the exit code 1; it is never dropped silently.
+Each line is a task (`tofcut.tools.batch`): `--workers` at once on a Ray started here, or
+on a Ray cluster (`--ray-address`). A line that fails is run once more; if it fails again it
+is reported with its seed and the error, and makes the exit code 1; it is never dropped.
 """
 
 from __future__ import annotations
@@ -91,10 +92,13 @@ def parse_trackers(text: str) -> tuple[str, ...]:
     return names
 
 
-def add_family_options(p: argparse.ArgumentParser, *, trackers: bool = True) -> None:
-    """The options of a family evaluation (`tofcut evaluate --family ... --seeds ...`);
-    without `trackers`, no `--trackers` (a sweep runs tofcut's)."""
-    g = p.add_argument_group("a family of lines (instead of CAPTURE --tracks --masks)")
+def add_family_options(
+    p: argparse.ArgumentParser, title: str, *, trackers: bool = True, tasks: str = "lines"
+) -> None:
+    """The options of a family evaluation (`tofcut evaluate --family ... --seeds ...`) in a
+    group of that `title`; without `trackers`, no `--trackers` (a sweep runs tofcut's);
+    `tasks` says what `--workers` runs at once."""
+    g = p.add_argument_group(title)
     which = g.add_mutually_exclusive_group()
     which.add_argument("--family", metavar="NAME", help="the lines emulator:family:NAME:SEED")
     which.add_argument(
@@ -120,7 +124,7 @@ def add_family_options(p: argparse.ArgumentParser, *, trackers: bool = True) -> 
             "--trackers", type=parse_trackers, default=TRACKERS, metavar="NAMES",
             help=f"comma-separated, of {', '.join(COMMANDS)} (default: all)",
         )  # fmt: skip
-    add_batch_options(g, "lines")
+    add_batch_options(g, tasks)
     g.add_argument("--out", type=Path, metavar="DIR", help="write the tables here, .md and .json")
 
 

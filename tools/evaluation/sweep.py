@@ -20,7 +20,6 @@ from typing import Any
 
 from tofcut.sim.truth import load_truth, truth_path
 from tofcut.tools.batch.pool import Pool
-from tofcut.tools.batch.steps import describe
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
 from tofcut.tools.evaluation.family import (
     AGGREGATE_HEAD,
@@ -32,7 +31,7 @@ from tofcut.tools.evaluation.family import (
     failed_exit,
     line_errors,
     plan_from_args,
-    prepare_line,
+    run_line,
     run_tracker,
     say,
     table,
@@ -50,14 +49,6 @@ from tofcut.tools.pipeline.settings import (
 from tofcut.tracker.params import TrackerParams
 
 TRACKER = "tofcut"
-
-
-def record(plan: Plan, seed: int) -> LineResult:
-    """A task: record (or reuse) one line; its error, not an exception, if that fails."""
-    try:
-        return prepare_line(plan, seed)[0]
-    except Exception as exc:
-        return LineResult(seed, plan.source(seed), error=describe(exc))
 
 
 @dataclass(frozen=True)
@@ -89,7 +80,8 @@ def sweep(plan: Plan, settings: list[dict[str, Value]], pool: Pool) -> list[list
     """For each setting, its lines (in the order of the seeds), each with the tracker's run
     under that setting, or the error that stopped it."""
     recorded = run_tasks(
-        functools.partial(record, plan), plan.seeds, pool, failure=line_errors,
+        functools.partial(run_line, replace(plan, trackers=())), plan.seeds, pool,
+        failure=line_errors,
         on_done=lambda o: say(f"seed {o.item} recorded ({line_errors(_line(plan, o)) or 'ok'})"),
         on_retry=_on_retry(lambda seed: f"recording seed {seed}"),
     )  # fmt: skip
