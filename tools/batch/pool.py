@@ -29,6 +29,7 @@ of scores, never frames, so Ray's default (30 % of the RAM) would only be memory
 LOCAL_ENVIRONMENT = {
     # The node's address is loopback (on Linux Ray otherwise takes the address it would
     # reach the internet from, and its servers listen there): nothing listens beyond it.
+    # (Ray reads it for macOS and Windows, where it is the default.)
     "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER": "0",
     # No usage report to the internet.
     "RAY_USAGE_STATS_ENABLED": "0",
@@ -129,17 +130,17 @@ class Pool:
         }  # fmt: skip
         try:
             if local:
+                if ray.util.get_node_ip_address() not in ("127.0.0.1", "::1"):
+                    raise BatchError(
+                        "Ray would listen beyond loopback here (it was imported before "
+                        "tofcut could set it up): run the batch in a process of its own"
+                    )
                 self.workers = self.asked or cores()
                 self._temp = Path(tempfile.mkdtemp(prefix="tofcut-ray-"))
                 ray.init(
                     address="local", num_cpus=self.workers, _temp_dir=str(self._temp),
                     object_store_memory=OBJECT_STORE_BYTES, **options,
                 )  # fmt: skip
-                if ray.util.get_node_ip_address() not in ("127.0.0.1", "::1"):
-                    raise BatchError(
-                        "Ray would listen beyond loopback here (it was imported before "
-                        "tofcut could set it up): run the batch in a process of its own"
-                    )
             else:
                 ray.init(address=self.address, **options)
                 self.workers = self.asked or max(1, int(ray.cluster_resources().get("CPU", 1)))

@@ -318,7 +318,7 @@ def run_lines(plan: Plan, pool: Pool, say: Callable[[str], None] = print) -> lis
     def finished(outcome: Outcome[int, LineResult]) -> None:
         nonlocal done
         done += 1
-        result = _line_of(plan, outcome)
+        result = line_of(plan, outcome)
         state = line_errors(result) or "ok"
         scores = ", ".join(
             f"{r.tracker} MOTA {r.scores.by_centroid.mota:.3f}" for r in result.runs if r.scores
@@ -330,10 +330,10 @@ def run_lines(plan: Plan, pool: Pool, say: Callable[[str], None] = print) -> lis
         on_done=finished,
         on_retry=lambda seed, why: say(f"seed {seed} failed ({why}): running it once more"),
     )  # fmt: skip
-    return [_line_of(plan, o) for o in outcomes]
+    return [line_of(plan, o) for o in outcomes]
 
 
-def _line_of(plan: Plan, outcome: Outcome[int, LineResult]) -> LineResult:
+def line_of(plan: Plan, outcome: Outcome[int, LineResult]) -> LineResult:
     """An outcome as its line: a task that returned nothing failed as a whole."""
     seed = outcome.item
     line = outcome.result or LineResult(seed, plan.source(seed), error=outcome.error)

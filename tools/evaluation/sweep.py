@@ -30,6 +30,7 @@ from tofcut.tools.evaluation.family import (
     aggregate_row,
     failed_exit,
     line_errors,
+    line_of,
     plan_from_args,
     run_line,
     run_tracker,
@@ -82,10 +83,10 @@ def sweep(plan: Plan, settings: list[dict[str, Value]], pool: Pool) -> list[list
     recorded = run_tasks(
         functools.partial(run_line, replace(plan, trackers=())), plan.seeds, pool,
         failure=line_errors,
-        on_done=lambda o: say(f"seed {o.item} recorded ({line_errors(_line(plan, o)) or 'ok'})"),
+        on_done=lambda o: say(f"seed {o.item} recorded ({line_errors(line_of(plan, o)) or 'ok'})"),
         on_retry=_on_retry(lambda seed: f"recording seed {seed}"),
     )  # fmt: skip
-    lines = {o.item: _line(plan, o) for o in recorded}
+    lines = {o.item: line_of(plan, o) for o in recorded}
     jobs = [Job(seed, i) for i in range(len(settings)) for seed in plan.seeds
             if not lines[seed].errors]  # fmt: skip
     done = 0
@@ -117,11 +118,6 @@ def sweep(plan: Plan, settings: list[dict[str, Value]], pool: Pool) -> list[list
             row.append(line)
         out.append(row)
     return out
-
-
-def _line(plan: Plan, o: Outcome[int, LineResult]) -> LineResult:
-    line = o.result or LineResult(o.item, plan.source(o.item), error=o.error)
-    return replace(line, retried=o.retried)
 
 
 def report(
