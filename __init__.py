@@ -4,7 +4,8 @@ What a Python user meets first (the rest lives in `tofcut.driver`, `tofcut.track
 `tofcut.sim`):
 
 - `tofcut.open(SOURCE)`: a camera or a capture by the names the command line uses (`usb`,
-  `usb:SERIAL`, `emulator[:SCENE]`, `run.tofcap`), each with the same `frames()`;
+  `usb:SERIAL`, `emulator[:SCENE]`, `emulator:run.tofcap`, `run.tofcap`), each with the
+  same `frames()`;
 - `tofcut.Tracker`, whose one call is `update(frame) -> TrackedFrame`;
 - the values that cross layers (`Frame`, `Track`, `TrackedFrame`) and the errors
   (`TofcutError` and its kinds);
@@ -51,19 +52,26 @@ _LAZY = {
 
 
 def open(
-    source: str = "emulator", *, seed: int = 0, realtime: bool = True, reconnect: bool = False
+    source: str = "emulator",
+    *,
+    seed: int = 0,
+    realtime: bool = True,
+    reconnect: bool = False,
+    loop: bool = False,
 ) -> Camera | CaptureReader:
     """Open `source` as the command line names it: `usb` (the first camera), `usb:SERIAL`,
     `emulator[:SCENE]` (a built-in scene, a scene file or `family:conveyor:N`, set up with
-    the scene's own camera settings) or `run.tofcap` (a capture, replayed). Each has
-    `frames()` and is a context manager; `seed` and `realtime` are the emulator's,
-    `reconnect` a camera's (its stream outlives unplugs and stalls). A real-time emulator
-    runs in a process of its own (`tofcut.sim.process.EmulatorProcess`), which ends when the
-    camera is collected or Python exits. A name that is none of these is a `TofcutError`."""
+    the scene's own camera settings; or `emulator:run.tofcap`, the emulated camera
+    replaying a capture, its frames ending with it) or `run.tofcap` (a capture, read). Each
+    has `frames()` and is a context manager; `seed`, `realtime` and `loop` (a replay starts
+    again at its end) are the emulator's, `reconnect` a camera's (its stream outlives
+    unplugs and stalls). A real-time emulator runs in a process of its own
+    (`tofcut.sim.process.EmulatorProcess`), which ends when the camera is collected or
+    Python exits. A name that is none of these is a `TofcutError`."""
     from tofcut.tools.pipeline.sources import SourceSpec, open_source
 
     return open_source(
-        SourceSpec.parse(source), seed=seed, realtime=realtime, reconnect=reconnect
+        SourceSpec.parse(source), seed=seed, realtime=realtime, reconnect=reconnect, loop=loop
     ).device
 
 

@@ -15,3 +15,5 @@ I32 = npt.NDArray[np.int32]
 """Pieces of a mask, numbered (`scipy.ndimage.label`'s type)."""
 U16 = npt.NDArray[np.uint16]
 """Labels: 0 the background, else a track's id."""
+U8 = npt.NDArray[np.uint8]
+"""An image's grey levels or colours, as written to a file or shown."""

@@ -18,9 +18,9 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from types import TracebackType
 from typing import Any
 
+from tofcut._closing import Closing
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.config import FRAME_PERIOD_UNIT_S, CameraConfig, TriggerMode
 from tofcut.driver.demod import Optics, demodulate
@@ -67,7 +67,7 @@ def list_cameras(
     ]
 
 
-class Camera:
+class Camera(Closing):
     """One opened camera.
 
     Frames are read on one thread; `stop()`, `close()` and `stats` may be used from any
@@ -477,14 +477,3 @@ class Camera:
             self.streaming = False
             self._usb.close()
             self._connected = False
-
-    def __enter__(self) -> Camera:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

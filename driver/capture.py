@@ -15,9 +15,9 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 from typing import Any, BinaryIO
 
+from tofcut._closing import Closing
 from tofcut.driver.calibration import Calibration, parse_calibration
 from tofcut.driver.demod import Optics, demodulate
 from tofcut.driver.errors import CaptureError, ProtocolError
@@ -60,16 +60,7 @@ class CaptureInfo:
 
 def capture_metadata(info: DeviceInfo, registers: dict[str, int], **extra: Any) -> dict[str, Any]:
     """The metadata a capture needs (spec §8), plus anything the recorder wants to keep."""
-    return {
-        "serial": info.serial_text,
-        "firmware": info.firmware,
-        "protocol": info.protocol,
-        "width": info.width,
-        "height": info.height,
-        "max_fps": info.max_fps,
-        "registers": registers,
-        **extra,
-    }
+    return {**info.described(), "registers": registers, **extra}
 
 
 CAMERA_KEYS = ("serial", "firmware", "protocol", "width", "height", "max_fps", "registers")
@@ -86,7 +77,18 @@ def bare_metadata(metadata: dict[str, Any]) -> dict[str, Any]:
     return {key: metadata[key] for key in CAMERA_KEYS if key in metadata}
 
 
-class CaptureWriter:
+@dataclass(frozen=True, eq=False)
+class Record:
+    """One record of a capture, as it is in the file."""
+
+    offset: int
+    """Where its frame bytes start in the file."""
+    host_time_ns: int
+    wire: bytes
+    """The frame as it was on the wire: one frame's size, whole or damaged."""
+
+
+class CaptureWriter(Closing):
     """Writes records as frames arrive; each record is flushed so a kill loses at most one."""
 
     def __init__(self, path: str | os.PathLike[str], metadata: dict[str, Any], calib: bytes):
@@ -105,17 +107,6 @@ class CaptureWriter:
     def close(self) -> None:
         if not self._file.closed:
             self._file.close()
-
-    def __enter__(self) -> CaptureWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _left(f: BinaryIO) -> int:
@@ -147,7 +138,7 @@ def _int_field(
     return value
 
 
-class CaptureReader:
+class CaptureReader(Closing):
     """A recorded camera: same `info`, `calibration`, `raw_frames()`, `frames()` as Camera."""
 
     def __init__(self, path: str | os.PathLike[str], *, amplitude_threshold: float = 0.0):
@@ -214,34 +205,47 @@ class CaptureReader:
     def serial(self) -> str:
         return self.info.serial_text
 
-    def raw_frames(self, count: int | None = None) -> Iterator[RawFrame]:
-        """Every good frame in order; damaged records are dropped and counted in `stats`."""
+    def parser(self) -> FrameParser:
+        """A parser for this capture's frames, counting into a fresh `stats`."""
         self.stats = StreamStats()
-        self.truncated_bytes = 0
         trigger_mode = self.capture.metadata["registers"].get("TRIGGER_MODE", 0)
-        parser = FrameParser(self.info, self.stats, periodic=trigger_mode == 0)
+        return FrameParser(self.info, self.stats, periodic=trigger_mode == 0)
+
+    def records(self) -> Iterator[Record]:
+        """Every whole record in order, as it is in the file (unparsed: it may be damaged);
+        a cut-short end is skipped and its size left in `truncated_bytes`."""
+        self.truncated_bytes = 0
         frame_size = self.info.frame_size
-        delivered = 0
         with open(self.path, "rb") as f:
             f.seek(self._records_start)
-            while count is None or delivered < count:
+            while True:
+                offset = f.tell()
                 stamp = f.read(_U64.size)
                 if not stamp:
-                    break
+                    return
                 if len(stamp) < _U64.size:
                     self.truncated_bytes = len(stamp)
-                    break
+                    return
                 (host_ns,) = _U64.unpack(stamp)
                 record = self._read_record(f, frame_size)
                 if record is None:
                     self.truncated_bytes += _U64.size
-                    break
-                for raw in parser.feed(record, host_ns):
-                    yield raw
-                    delivered += 1
-                    if count is not None and delivered >= count:
-                        break
-                parser.end_transfer()  # a record is one frame: what is left of it is damage
+                    return
+                yield Record(offset + _U64.size, host_ns, record)
+
+    def raw_frames(self, count: int | None = None) -> Iterator[RawFrame]:
+        """Every good frame in order; damaged records are dropped and counted in `stats`."""
+        parser = self.parser()
+        delivered = 0
+        if count is not None and count <= 0:
+            return
+        for record in self.records():
+            for raw in parser.feed(record.wire, record.host_time_ns):
+                yield raw
+                delivered += 1
+            parser.end_transfer()  # a record is one frame: what is left of it is damage
+            if count is not None and delivered >= count:
+                return
 
     def _read_record(self, f: BinaryIO, frame_size: int) -> bytes | None:
         """One record's frame bytes, or None (with `truncated_bytes` set) at a cut-short end.
@@ -266,17 +270,6 @@ class CaptureReader:
 
     def close(self) -> None:
         """Nothing is held open between reads; here for symmetry with Camera."""
-
-    def __enter__(self) -> CaptureReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def bare_copy(source: str | os.PathLike[str], target: str | os.PathLike[str]) -> int:

@@ -6,9 +6,11 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 def show(value: object) -> str:
@@ -50,6 +52,27 @@ def read_toml(path: str | Path, max_bytes: int) -> dict[str, Any]:
         raise ValueError(str(exc).splitlines()[0] if str(exc) else "not TOML") from None
     except RecursionError:
         raise ValueError("arrays or tables nested too deep") from None
+
+
+def load_toml(
+    path: str | Path,
+    max_bytes: int,
+    parse: Callable[[dict[str, Any]], T],
+    error: type[Exception],
+) -> T:
+    """`parse` of a TOML file's document (`read_toml`). What goes wrong, reading the file or
+    in `parse` (which raises `error`), is an `error` in one line that names the file."""
+    p = Path(path)
+    try:
+        doc = read_toml(p, max_bytes)
+    except OSError as exc:
+        raise error(f"{p}: {exc.strerror or exc}") from None
+    except ValueError as exc:
+        raise error(f"{p}: {exc}") from None
+    try:
+        return parse(doc)
+    except error as exc:
+        raise error(f"{p}: {exc}") from None
 
 
 def unknown_keys(

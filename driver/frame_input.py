@@ -14,7 +14,7 @@ import time
 import numpy as np
 import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.driver.errors import FrameInputError
 from tofcut.driver.frames import Frame
 from tofcut.driver.intrinsics import Intrinsics, is_real_number, is_whole_number
@@ -25,7 +25,6 @@ MAX_TIME_S = 2**63 / 1e6
 MAX_SEQUENCE = 2**64
 AGREE_REL = 1e-6
 """How far |xyz| and range_m, when both are given, may differ at a valid pixel (relative)."""
-B = npt.NDArray[np.bool_]
 
 
 def _where(mask: B) -> str:

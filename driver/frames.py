@@ -14,17 +14,10 @@ if TYPE_CHECKING:
     from tofcut.driver.intrinsics import Intrinsics
 
 
-@dataclass(frozen=True, eq=False)
-class RawFrame:
-    """One frame exactly as received: header, the four taps, and when the host got it."""
+class _Stamped:
+    """What a frame's header says of when it was taken, read from the frame itself."""
 
     header: FrameHeader
-    taps: npt.NDArray[np.uint16]
-    """(4, H, W) raw counts, a read-only view on `wire`."""
-    wire: bytes
-    """Header and payload as they came over the wire (what a capture stores)."""
-    host_time_ns: int
-    """Host receive time, ns since the Unix epoch."""
 
     @property
     def sequence(self) -> int:
@@ -36,7 +29,20 @@ class RawFrame:
 
 
 @dataclass(frozen=True, eq=False)
-class Frame:
+class RawFrame(_Stamped):
+    """One frame exactly as received: header, the four taps, and when the host got it."""
+
+    header: FrameHeader
+    taps: npt.NDArray[np.uint16]
+    """(4, H, W) raw counts, a read-only view on `wire`."""
+    wire: bytes
+    """Header and payload as they came over the wire (what a capture stores)."""
+    host_time_ns: int
+    """Host receive time, ns since the Unix epoch."""
+
+
+@dataclass(frozen=True, eq=False)
+class Frame(_Stamped):
     """A demodulated frame (spec §7); every array is (H, W) or (H, W, 3), row-major."""
 
     header: FrameHeader
@@ -52,14 +58,6 @@ class Frame:
     """False where a tap saturated or the amplitude is below the threshold."""
     xyz: npt.NDArray[np.float64]
     """Camera-frame points (x right, y down, z forward), metres, (H, W, 3)."""
-
-    @property
-    def sequence(self) -> int:
-        return self.header.sequence
-
-    @property
-    def device_time_us(self) -> int:
-        return self.header.device_time_us
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -97,6 +95,8 @@ class Frame:
         `sequence` its frame counter, `host_time_ns` when it reached the host (default:
         now). There is no phase: `phase` is zeros.
         """
+        # the arguments are repeated on purpose: this is the signature a user reads and a
+        # type checker checks, and the checks live in frame_input, which imports this module
         from tofcut.driver.frame_input import frame_from_arrays
 
         return frame_from_arrays(

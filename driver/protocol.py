@@ -142,6 +142,17 @@ class DeviceInfo:
     def payload_size(self) -> int:
         return TAPS * self.width * self.height * 2
 
+    def described(self) -> dict[str, int | str]:
+        """The camera as a capture's metadata and `tofcut info --json` name it."""
+        return {
+            "serial": self.serial_text,
+            "firmware": self.firmware,
+            "protocol": self.protocol,
+            "width": self.width,
+            "height": self.height,
+            "max_fps": self.max_fps,
+        }
+
 
 MAX_SENSOR_SIDE = 4096
 """No sensor of this family is wider or taller; a bigger size read from the wire is damage."""

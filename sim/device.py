@@ -11,10 +11,15 @@ firmware (`hang`), FIFO overflow (`overflow_fifo`), and power loss (`detach`/`at
 the bus's `unplug`/`replug` call). Losing power is a reboot, as on a real camera: the
 registers go back to their reset values, the sequence starts again at 0 and the device
 clock at 0 µs. A USB port reset (`usb_reset`) restarts the firmware the same way.
+
+Fed a `Recording` (`tofcut.sim.replay`) instead of a scene, it is the camera that made the
+recording: its flash and registers, and each exposure sends the recorded frame of its time
+(with the camera's own sequence, time and drop flag written in), faults and all.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import time
@@ -26,6 +31,7 @@ from typing import Protocol
 import numpy as np
 
 from tofcut.driver.calibration import pack_calibration
+from tofcut.driver.errors import ProtocolError
 from tofcut.driver.protocol import (
     FLAG_DROPPED_BEFORE,
     FLAG_OVER_TEMPERATURE,
@@ -50,8 +56,9 @@ from tofcut.driver.protocol import (
     integration_us,
     pack_header,
     pack_info,
+    parse_header,
 )
-from tofcut.sim.source import Exposure, Rendered, TapSource
+from tofcut.sim.source import Exposure, Recording, Rendered, TapSource
 
 READOUT_US = 200
 """Time between the end of one tap's integration and the start of the next."""
@@ -78,6 +85,27 @@ class BulkOverflow(Exception):
     """The host asked for a length that is not a whole number of packets and data overran it."""
 
 
+class ReplayEnded(BulkTimeout):
+    """A replay has sent its last frame: no data, as from a camera that stopped sending."""
+
+
+def register_value_ok(register: Register, value: int) -> bool:
+    """Whether a writable register takes `value` (a u16 already)."""
+    return {
+        Register.MOD_FREQ: value in MOD_FREQ_MHZ,
+        Register.INTEGRATION: 0 <= value <= 255,
+        Register.FRAME_PERIOD: True,
+        Register.TRIGGER_MODE: value in (0, 1, 2),
+    }[register]
+
+
+def frame_period_us(registers: dict[Register, int]) -> int:
+    """Time between frame starts: as asked, but no faster than the taps or 54 fps allow."""
+    tap_interval = integration_us(registers[Register.INTEGRATION]) + READOUT_US
+    fastest = max(TAPS * tap_interval, math.ceil(1e6 / MAX_FPS))
+    return max(registers[Register.FRAME_PERIOD] * 100, fastest)
+
+
 class EmulatedDevice(Protocol):
     """An emulated camera as the bus and the tests use it: an `EmulatedCamera`, or its proxy
     in a process of its own (`tofcut.sim.process.EmulatorProcess`)."""
@@ -96,6 +124,8 @@ class EmulatedDevice(Protocol):
     def boots(self) -> int: ...
     @property
     def frame_period_us(self) -> int: ...
+    @property
+    def replay_done(self) -> threading.Event: ...
     def now_us(self) -> int: ...
     def control_in(self, request: int, value: int, index: int, length: int) -> bytes: ...
     def control_out(self, request: int, value: int, index: int, data: bytes) -> None: ...
@@ -120,10 +150,12 @@ class _Queued:
     flags: int
     wire: bytes | None = None
     """The frame rendered and on its way to the wire (rendering ahead), else None."""
+    recorded: int | None = None
+    """A replay's recorded frame (`Recording.take`)."""
 
 
 class EmulatedCamera:
-    """One emulated SR-USB camera, fed by a scene (`TapSource`).
+    """One emulated SR-USB camera, fed by a scene (`TapSource`) or a `Recording`.
 
     `realtime=False` runs the frame clock virtually: every bulk read gets the next frame at
     once, with device timestamps as if the camera ran at its frame rate; nothing is dropped.
@@ -136,6 +168,12 @@ class EmulatedCamera:
     without it a frame is rendered when the host reads it. The emulator's own process uses
     it, so that a host late to ask does not make the renderer late too. The thread lives as
     long as the process: not for a camera made and dropped in a long-lived one.
+
+    A `Recording` gives the flash and the registers (`registers` is then not used); its
+    frames are taken by the time of their exposure on a clock that runs on through reboots
+    (while the camera is off in real time, the line goes on and its frames are missed), and
+    the stream ends with the recording: once its last frame is sent a bulk read raises
+    `ReplayEnded` and sets `replay_done`. A register write it cannot replay stalls.
     """
 
     def __init__(
@@ -152,7 +190,12 @@ class EmulatedCamera:
     ) -> None:
         self.source = source
         calib = source.calibration
-        self.flash = pack_calibration(calib)
+        self._recording = source if isinstance(source, Recording) else None
+        self.flash = (
+            pack_calibration(calib)
+            if self._recording is None
+            else self._recording.calibration_block
+        )
         self.info = DeviceInfo(
             protocol=1,
             firmware=firmware,
@@ -167,9 +210,9 @@ class EmulatedCamera:
         self.temperature_c = 36.5
         self.over_temperature = False
         self._monotonic = monotonic
-        self._power_on = monotonic()
+        self._power_on = self._created = monotonic()
         self._regs: dict[Register, int] = dict(RESET_VALUES)
-        self._regs.update(registers or {})
+        self._regs.update(registers or {} if self._recording is None else self._recording.registers)
         self._lock = threading.Condition()
         self._streaming = False
         self._next_seq = 0
@@ -197,6 +240,11 @@ class EmulatedCamera:
         self._hung = False
         self.boots = 1
         """Times the firmware started: power-on, then once per power cycle or USB reset."""
+        self._line_us_at_boot = 0
+        """A replay's clock (`Recording.take`) when the firmware last started."""
+        self._replay_ended = False
+        self.replay_done = threading.Event()
+        """Set when a replay has sent its last frame and the host asked for more."""
         self.render_ahead = render_ahead and realtime
         if self.render_ahead:
             threading.Thread(target=self._sensor, name="tofcut-sensor", daemon=True).start()
@@ -216,9 +264,7 @@ class EmulatedCamera:
     @property
     def frame_period_us(self) -> int:
         """Time between frame starts: as asked, but no faster than the taps or 54 fps allow."""
-        asked = self._regs[Register.FRAME_PERIOD] * 100
-        fastest = max(TAPS * self.tap_interval_us, math.ceil(1e6 / MAX_FPS))
-        return max(asked, fastest)
+        return frame_period_us(self._regs)
 
     # --- control requests -----------------------------------------------------------------
 
@@ -282,14 +328,12 @@ class EmulatedCamera:
             raise Stall(f"no register 0x{address:02x}") from None
         if register not in WRITABLE_REGISTERS:
             raise Stall(f"register {register.name} is read-only")
-        valid = {
-            Register.MOD_FREQ: value in MOD_FREQ_MHZ,
-            Register.INTEGRATION: 0 <= value <= 255,
-            Register.FRAME_PERIOD: True,
-            Register.TRIGGER_MODE: value in (0, 1, 2),
-        }[register]
-        if not valid:
+        if not register_value_ok(register, value):
             raise Stall(f"value {value} is out of range for {register.name}")
+        if self._recording is not None and (
+            why := self._recording.refusal(register, value, self._regs)
+        ):
+            raise Stall(why)
         self._regs[register] = value
         if self._streaming and register in (Register.FRAME_PERIOD, Register.INTEGRATION):
             self._restart_clock()
@@ -316,10 +360,22 @@ class EmulatedCamera:
 
     def _take_frame(self, t0_us: int) -> None:
         """The sensor takes a frame: into the FIFO if there is room, else it is dropped."""
+        recorded = None
+        if self._recording is not None:
+            if self._replay_ended:
+                return
+            take = self._recording.take(self._line_us_at_boot + t0_us)
+            if take.ended:
+                self._replay_ended = True
+                self._lock.notify_all()
+                return
+            recorded = take.frame
         seq = self._next_seq
         self._next_seq = (seq + 1) & 0xFFFFFFFF
         if not self.realtime:  # the virtual clock stands where the exposure ends
             self._virtual_us = max(self._virtual_us, t0_us + TAPS * self.tap_interval_us)
+        if self._recording is not None and recorded is None:
+            return  # lost where it was recorded: numbered, never sent
         if len(self._fifo) >= self.fifo_frames:
             self.frames_dropped += 1
             self._drop_pending = True
@@ -327,10 +383,10 @@ class EmulatedCamera:
             return
         flags = FLAG_DROPPED_BEFORE if self._drop_pending else 0
         self._drop_pending = False
-        self._fifo.append(_Queued(seq, t0_us, flags))
+        self._fifo.append(_Queued(seq, t0_us, flags, recorded=recorded))
 
     def _free_run_due(self) -> bool:
-        return self._streaming and self._regs[Register.TRIGGER_MODE] == 0
+        return self._streaming and self._regs[Register.TRIGGER_MODE] == 0 and not self._replay_ended
 
     def _catch_up(self) -> None:
         """Take every free-run frame whose exposure has ended by now."""
@@ -339,16 +395,18 @@ class EmulatedCamera:
         period = self.frame_period_us
         duration = TAPS * self.tap_interval_us
         if not self.realtime:
-            if not self._fifo:
+            while not self._fifo and self._free_run_due():  # (a replay's lost frames send none)
                 self._take_frame(self._clock_start_us + self._clock_index * period)
                 self._clock_index += 1
             return
         done = (self.now_us() - duration - self._clock_start_us) // period + 1
         while self._clock_index < done and len(self._fifo) < self.fifo_frames:
+            if not self._free_run_due():
+                return  # a replay that ended
             self._take_frame(self._clock_start_us + self._clock_index * period)
             self._clock_index += 1
         dropped = done - self._clock_index
-        if dropped > 0:  # the FIFO is full: the sensor's later frames are lost, all at once
+        if dropped > 0 and self._free_run_due():  # the FIFO is full: the later frames are lost
             self._next_seq = (self._next_seq + dropped) & 0xFFFFFFFF
             self._clock_index = done
             self.frames_dropped += dropped
@@ -393,10 +451,17 @@ class EmulatedCamera:
 
     def _boot(self) -> None:
         """Power-on state: reset registers, sequence 0, device clock 0, no faults pending."""
+        now = self._monotonic()
+        if self.realtime:  # the line went on while the camera was off
+            self._line_us_at_boot = int((now - self._created) * 1e6)
+        else:
+            self._line_us_at_boot += self._virtual_us
         self._powered = True
-        self._power_on = self._monotonic()
+        self._power_on = now
         self._virtual_us = 0
         self._regs = dict(RESET_VALUES)
+        if self._recording is not None:  # it powers on as the recording was made
+            self._regs.update(self._recording.registers)
         self._next_seq = 0
         self._clock_start_us = 0
         self._clock_index = 0
@@ -511,6 +576,12 @@ class EmulatedCamera:
                     self._tx_pos = 0
                     continue
                 wait = deadline - self._monotonic()
+                if self._replay_ended and self._streaming and not self._fifo:
+                    self.replay_done.set()  # what waits for the end stops the host meanwhile
+                    if wait <= 0:
+                        raise ReplayEnded
+                    self._lock.wait(wait)
+                    continue
                 due = self._next_due_us()
                 if not self.realtime and (due is None or not self._streaming):
                     wait = min(wait, 0.0)  # nothing will come; don't make tests wait
@@ -584,6 +655,7 @@ class EmulatedCamera:
             tap_interval_s=self.tap_interval_us / 1e6,
             integration_s=integration_us(self._regs[Register.INTEGRATION]) / 1e6,
             mod_code=self._regs[Register.MOD_FREQ],
+            recorded=queued.recorded,
         )
 
     def _build(self, queued: _Queued) -> bytes:
@@ -592,6 +664,8 @@ class EmulatedCamera:
 
     def _wire(self, queued: _Queued, rendered: Rendered, regs: dict[Register, int]) -> bytes:
         """A rendered frame as it goes on the wire: header and taps."""
+        if rendered.wire is not None:
+            return self._restamped(queued, rendered.wire)
         taps = np.ascontiguousarray(rendered.taps, dtype="<u2")
         self._keep_truth(queued.sequence, rendered.truth)
         flags = queued.flags
@@ -614,6 +688,21 @@ class EmulatedCamera:
             payload_crc=crc32(payload),
         )
         return pack_header(header) + payload
+
+    def _restamped(self, queued: _Queued, wire: bytes) -> bytes:
+        """A recorded frame with this camera's sequence, time and drop flag in its header;
+        a damaged one (its header unreadable) goes as it was recorded."""
+        try:
+            recorded = parse_header(wire[:HEADER_SIZE])
+        except ProtocolError:
+            return wire
+        flags = recorded.flags | queued.flags
+        if self.over_temperature:
+            flags |= FLAG_OVER_TEMPERATURE
+        header = dataclasses.replace(
+            recorded, sequence=queued.sequence, device_time_us=queued.t0_us, flags=flags
+        )
+        return pack_header(header) + wire[HEADER_SIZE:]
 
     def _keep_truth(self, sequence: int, truth: object) -> None:
         if truth is None:

@@ -26,8 +26,8 @@ import tty
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
-from types import TracebackType
 
+from tofcut._closing import Closing
 from tofcut.sim.modbus_rtu import (
     ExceptionCode,
     RegisterDevice,
@@ -63,7 +63,7 @@ class ServerStats:
     """Good frames for another unit id (ignored, as on a shared RS-485 bus)."""
 
 
-class PtyModbusServer:
+class PtyModbusServer(Closing):
     """Serves a `RegisterDevice` as Modbus RTU unit `unit` on a pseudo-terminal."""
 
     def __init__(
@@ -133,14 +133,6 @@ class PtyModbusServer:
 
     def __enter__(self) -> PtyModbusServer:
         return self.start()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     # --- faults ---------------------------------------------------------------------------
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 from PIL import Image, ImageDraw
 
+from tofcut._types import F64, I32, U8
 from tofcut.driver.demod import Optics, demodulate
 from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.protocol import FrameHeader, integration_us
@@ -13,8 +13,6 @@ from tofcut.sim.device import READOUT_US
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.source import Exposure
 from tofcut.sim.truth import FrameTruth
-
-U8 = npt.NDArray[np.uint8]
 
 
 def scene_exposure(source: SceneSource, t0_s: float, sequence: int = 0) -> Exposure:
@@ -40,7 +38,7 @@ def decode(source: SceneSource, exposure: Exposure) -> tuple[Frame, FrameTruth]:
     return demodulate(raw, Optics.from_calibration(calib)), rendered.truth
 
 
-def _gray(values: npt.NDArray[np.float64], lo: float, hi: float) -> U8:
+def _gray(values: F64, lo: float, hi: float) -> U8:
     scaled = (np.nan_to_num(values, nan=lo) - lo) / max(hi - lo, 1e-12)
     return (np.clip(scaled, 0.0, 1.0) * 255).astype(np.uint8)
 
@@ -54,7 +52,7 @@ def _turbo(x: U8) -> U8:
     return (np.stack([r, g, b], axis=-1) * 255).astype(np.uint8)
 
 
-def _label_colours(labels: npt.NDArray[np.int32], target: int | None) -> U8:
+def _label_colours(labels: I32, target: int | None) -> U8:
     rng = np.random.default_rng(7)
     palette = rng.integers(60, 256, (int(labels.max()) + 1, 3)).astype(np.uint8)
     palette[0] = (40, 40, 40)

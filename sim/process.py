@@ -43,9 +43,17 @@ from collections.abc import Callable
 from multiprocessing.connection import Connection
 from typing import Any
 
+from tofcut._closing import Closing
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import DeviceInfo
-from tofcut.sim.device import BulkOverflow, BulkTimeout, Detached, EmulatedCamera, Stall
+from tofcut.sim.device import (
+    BulkOverflow,
+    BulkTimeout,
+    Detached,
+    EmulatedCamera,
+    ReplayEnded,
+    Stall,
+)
 from tofcut.sim.source import TapSource
 
 SHARED_BYTES = 8 << 20
@@ -75,12 +83,13 @@ class EmulatorProcessError(TofcutError):
     """The emulated camera's process did not start, or ended when it should not have."""
 
 
-class EmulatorProcess:
+class EmulatorProcess(Closing):
     """An emulated camera (`EmulatedCamera`) running in a child process; this is its proxy.
 
-    `make_source` builds the scene in the child: it is pickled, so a module-level function
-    or a `functools.partial` of one. `source`, if given, is this process's copy of that
-    scene, for what the caller reads of it (metadata, the belt); nothing renders it here.
+    `make_source` builds the scene (or the `Recording` to replay) in the child: it is
+    pickled, so a module-level function or a `functools.partial` of one. `source`, if
+    given, is this process's copy of that scene, for what the caller reads of it
+    (metadata, the belt); nothing renders it here.
     The other arguments are `EmulatedCamera`'s. Close it (or use it as a context manager)
     to end the child; it also ends when this object is collected or the interpreter exits.
     """
@@ -99,6 +108,9 @@ class EmulatorProcess:
     ) -> None:
         self.source = source
         self.realtime = realtime
+        self.replay_done = threading.Event()
+        """Set when the camera replays a recording, has sent its last frame and was asked
+        for more (`EmulatedCamera.replay_done`)."""
         self._closed = False
         self._control_lock = threading.Lock()
         self._bulk_lock = threading.Lock()
@@ -180,12 +192,6 @@ class EmulatorProcess:
         for fd in (self._shared_fd, self._stderr_fd):
             with contextlib.suppress(OSError):
                 os.close(fd)
-
-    def __enter__(self) -> EmulatorProcess:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def _died(self, what: str) -> EmulatorProcessError:
         """The error for a child that is gone: its exit status and the last line it wrote."""
@@ -325,6 +331,8 @@ class EmulatorProcess:
                     raise Detached from None
                 raise self._died("ended unexpectedly") from None
         if status == "raise":
+            if isinstance(value, ReplayEnded):
+                self.replay_done.set()
             raise value
         return int(value)
 

@@ -12,11 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I32, B
 from tofcut.sim.geometry import Pose
 from tofcut.sim.shapes import Shape
-
-I32 = npt.NDArray[np.int32]
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,7 +116,7 @@ def cast_samples(
     return out
 
 
-def depth_edges(hits: Hits, jump_m: float) -> npt.NDArray[np.bool_]:
+def depth_edges(hits: Hits, jump_m: float) -> B:
     """Pixels next to a change of surface or a range step, grown by one pixel each way."""
     sid, r = hits.sid, hits.range
     with np.errstate(invalid="ignore"):

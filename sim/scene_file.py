@@ -54,7 +54,6 @@ swing = { axis = [0, 1, 0], amplitude_deg = 20, period_s = 4, pivot = [0, 0, 0.4
 from __future__ import annotations
 
 import itertools
-import json
 import math
 from dataclasses import fields
 from pathlib import Path
@@ -62,10 +61,11 @@ from typing import Any
 
 import numpy as np
 
-from tofcut.driver.config_file import as_float, read_toml, unknown_keys
+from tofcut.driver.config_file import as_float, load_toml, unknown_keys
 from tofcut.driver.config_file import show as _show
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import MOD_FREQ_MHZ, check_sensor_size
+from tofcut.driver.toml_writer import dumps
 from tofcut.sim.geometry import Pose, axis_angle, look_at, rotation_xyz_deg
 from tofcut.sim.lens import LensSpec
 from tofcut.sim.scene import (
@@ -491,69 +491,15 @@ def parse_scene(doc: Table, name: str = "scene") -> Scene:
 
 def load_scene(path: str | Path) -> Scene:
     """Read and build a scene file; `SceneError` (one line, naming the file) if it cannot be."""
-    p = Path(path)
-    try:
-        doc = read_toml(p, MAX_FILE_BYTES)
-    except OSError as exc:
-        raise SceneError(f"{p}: {exc.strerror or exc}") from None
-    except ValueError as exc:
-        raise SceneError(f"{p}: {exc}") from None
-    try:
-        return parse_scene(doc, p.stem)
-    except SceneError as exc:
-        raise SceneError(f"{p}: {exc}") from None
-
-
-def _toml_value(value: Any, where: str) -> str:
-    """One TOML value: a string, number, boolean or array of them (floats by `repr`, which
-    reads back as the same double)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)  # a JSON string is a TOML basic string
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
-    raise SceneError(f"{where}: cannot write {type(value).__name__} {value!r} to TOML")
-
-
-def _toml_key(key: str) -> str:
-    """A bare key where TOML allows one, else a quoted one."""
-    bare = key and all(c.isascii() and (c.isalnum() or c in "_-") for c in key)
-    return key if bare else json.dumps(key)
-
-
-def _is_table_array(value: Any) -> bool:
-    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
-
-
-def _toml_table(table: Table, path: str, out: list[str]) -> None:
-    """The key/value lines of a table, then its sub-tables and arrays of tables."""
-    for key, value in table.items():
-        if not isinstance(value, dict) and not _is_table_array(value):
-            out.append(f"{_toml_key(key)} = {_toml_value(value, f'{path}{key}')}")
-    for key, value in table.items():
-        name = f"{path}{_toml_key(key)}"
-        if isinstance(value, dict):
-            out.extend(["", f"[{name}]"])
-            _toml_table(value, f"{name}.", out)
-        elif _is_table_array(value):
-            for item in value:
-                out.extend(["", f"[[{name}]]"])
-                _toml_table(item, f"{name}.", out)
+    name = Path(path).stem
+    return load_toml(path, MAX_FILE_BYTES, lambda doc: parse_scene(doc, name), SceneError)
 
 
 def scene_toml(doc: Table, comment: str = "") -> str:
     """A scene document (what `tomllib` reads from a scene file) as TOML text: `tomllib.loads`
     gives `doc` back exactly, so `parse_scene` builds the same scene. `comment` goes first,
     each line as a `#` comment."""
-    out = [f"# {line}".rstrip() for line in comment.splitlines()]
-    _toml_table(doc, "", out)
-    return "\n".join(out) + "\n"
+    try:
+        return dumps(doc, {"": comment.splitlines()})
+    except ValueError as exc:
+        raise SceneError(str(exc)) from None

@@ -9,16 +9,19 @@ context managers and what each cost.
 The camera is the driver's own `Camera` (`camera.camera`) on the emulated USB bus, opened
 through the source names the command line uses (`tools.pipeline.sources`), so a test runs
 the same path as `tofcut live`: the real driver, its reconnects and its loss accounting.
+It renders a scene, or replays a capture (`emulated_camera("run.tofcap")`, as
+`emulator:run.tofcap`): a recording of a real line, through the same faults.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import threading
 from collections.abc import Callable, Iterator
-from types import TracebackType
 from typing import Any, Protocol
 
+from tofcut._closing import Closing
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.camera import Camera
 from tofcut.driver.events import DeviceEvent
@@ -26,9 +29,10 @@ from tofcut.driver.frames import Frame, RawFrame
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.renderer import SceneSource
+from tofcut.sim.replay import ReplayIndex
 from tofcut.sim.scene import Scene
 from tofcut.sim.source import TapSource
-from tofcut.testing.common import Later, RigError, check_seconds
+from tofcut.testing.common import Later, RigError, check_seconds, end_all
 from tofcut.tools.pipeline.sources import Opened, SourceSpec, belt_of, open_source
 
 COUNTS = (
@@ -130,7 +134,7 @@ class FaultWindow:
         return [e.kind.value for e in self.events]
 
 
-class CameraRig:
+class CameraRig(Closing):
     """An emulated camera opened for a test (`emulated_camera`), its faults at hand."""
 
     def __init__(self, opened: Opened, *, scene: str, seed: int, realtime: bool) -> None:
@@ -163,13 +167,20 @@ class CameraRig:
 
     @property
     def metadata(self) -> dict[str, Any]:
-        """What the scene tells a run: its name, belt, marked target (as captures keep it)."""
+        """What the scene tells a run: its name, belt, marked target (as captures keep it);
+        for a replay, what its capture's metadata tells beyond the camera."""
         return self.opened.metadata
 
     @property
+    def replay(self) -> ReplayIndex | None:
+        """The capture the camera replays (its frames, what was damaged in it), or None."""
+        return self.opened.replay
+
+    @property
     def belt(self) -> BeltGeometry | None:
-        """The scene's belt (for `tofcut.Tracker(belt=...)`), or None."""
-        known = belt_of(self.metadata, "scene")
+        """The scene's (or the replayed capture's) belt, for `tofcut.Tracker(belt=...)`, or
+        None."""
+        known = belt_of(self.metadata, "scene" if self.replay is None else "capture")
         return None if known is None else known.geometry
 
     @property
@@ -303,41 +314,30 @@ class CameraRig:
         if self._closed:
             return
         self._closed = True
-        for later in self._pending:
-            later.cancel.set()
         try:
-            for later in self._pending:
-                later.join()
+            end_all(self._pending)
         finally:
             self.opened.close()  # the camera, then the emulator's process if it has one
 
-    def __enter__(self) -> CameraRig:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
-
 
 def emulated_camera(
-    scene: str = "conveyor",
+    scene: str | os.PathLike[str] = "conveyor",
     *,
     realtime: bool = False,
     seed: int = 0,
     reconnect: bool = True,
     amplitude_threshold: float = 0.0,
+    loop: bool = False,
 ) -> CameraRig:
     """Open an emulated camera as `tofcut.open(f"emulator:{scene}")` does: `scene` is a
-    built-in scene, a scene `.toml` file, `family:conveyor:N` or `test-pattern`; in real
-    time (frames at the camera's rate) or fast (as fast as they are read, on a virtual
+    built-in scene, a scene `.toml` file, `family:conveyor:N`, `test-pattern`, or a capture
+    (`.tofcap`) the camera replays (its frames end with the capture, unless `loop`); in
+    real time (frames at the camera's rate) or fast (as fast as they are read, on a virtual
     clock: the same frames every time for a seed); `reconnect` lets the stream outlive
     unplugs, stalls and hangs, as `tofcut live` opens cameras."""
+    name = os.fspath(scene)
     opened = open_source(
-        SourceSpec("emulator", scene), realtime=realtime, seed=seed, reconnect=reconnect,
-        amplitude_threshold=amplitude_threshold,
+        SourceSpec("emulator", name), realtime=realtime, seed=seed, reconnect=reconnect,
+        amplitude_threshold=amplitude_threshold, loop=loop,
     )  # fmt: skip
-    return CameraRig(opened, scene=scene, seed=seed, realtime=realtime)
+    return CameraRig(opened, scene=name, seed=seed, realtime=realtime)

@@ -37,6 +37,14 @@ class Later:
             raise error
 
 
+def end_all(pending: list[Later]) -> None:
+    """End every fault still to end, at once, and wait for each; raises what one raised."""
+    for later in pending:
+        later.cancel.set()
+    for later in pending:
+        later.join()
+
+
 def check_seconds(what: str, seconds: float | None) -> None:
     """A fault's duration: None (the block's), or 0..3600 s (`RigError` otherwise)."""
     if seconds is not None and (

@@ -18,20 +18,20 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
+from tofcut._closing import Closing
 from tofcut.driver.conveyor.config import LinkSettings, RegisterMap
 from tofcut.driver.conveyor.link import ConveyorClient
 from tofcut.sim.conveyor import EmulatedConveyor, for_scene
 from tofcut.sim.modbus_server import Fault, PtyModbusServer
 from tofcut.testing.camera import CameraRig
-from tofcut.testing.common import Later, RigError, check_seconds
+from tofcut.testing.common import Later, RigError, check_seconds, end_all
 
 DEFAULT_SPEED_MPS = 0.25
 
 
-class ConveyorRig:
+class ConveyorRig(Closing):
     """The emulated controller (`controller`) served on a pseudo-terminal (`server`)."""
 
     def __init__(self, controller: EmulatedConveyor, server: PtyModbusServer) -> None:
@@ -134,26 +134,12 @@ class ConveyorRig:
         if self._closed:
             return
         self._closed = True
-        for later in self._pending:
-            later.cancel.set()
         try:
-            for later in self._pending:
-                later.join()
+            end_all(self._pending)
             for client in self._clients:
                 client.close()
         finally:
             self.server.close()
-
-    def __enter__(self) -> ConveyorRig:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def emulated_conveyor(

@@ -7,7 +7,8 @@ for one of its fixtures.
 
 - `tofcut_camera`: a `CameraRig`, the emulated conveyor scene, fast (virtual clock), seed
   0, reconnecting; `@pytest.mark.tofcut_camera("tools", realtime=True, seed=3)` or
-  indirect parametrization (a scene name or a dict of options) says otherwise.
+  indirect parametrization (a scene name, a capture to replay, or a dict of options) says
+  otherwise.
 - `tofcut_conveyor`: a `ConveyorRig`; it follows `tofcut_camera`'s belt when the test uses
   both and the scene has one, else 0.25 m/s on the host's clock
   (`@pytest.mark.tofcut_conveyor(speed_mps=0.4)` for options).
@@ -31,8 +32,9 @@ if TYPE_CHECKING:
 def pytest_configure(config: pytest.Config) -> None:
     config.addinivalue_line(
         "markers",
-        "tofcut_camera(scene='conveyor', *, realtime=False, seed=0, reconnect=True): "
-        "how tofcut's tofcut_camera fixture opens its emulated camera",
+        "tofcut_camera(scene='conveyor', *, realtime=False, seed=0, reconnect=True, "
+        "loop=False): how tofcut's tofcut_camera fixture opens its emulated camera (scene: "
+        "a scene, or a capture FILE.tofcap it replays)",
     )
     config.addinivalue_line(
         "markers",

@@ -1,6 +1,6 @@
-"""Finding the belt from the frames alone (`tofcut.tracker.belt_finder`), `tofcut calibrate`,
-and the map's TOML writer: emulated scenes rendered and demodulated through the driver, their
-metadata never shown to the finder, the truth used only to score it."""
+"""Finding the belt from the frames alone (`tofcut.tracker.belt_finder`) and `tofcut calibrate`:
+emulated scenes rendered and demodulated through the driver, their metadata never shown to the
+finder, the truth used only to score it."""
 
 from __future__ import annotations
 
@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import KnownBelt
-from tofcut.driver.conveyor.config import load_conveyor_config, parse_conveyor_config
-from tofcut.driver.conveyor.toml_writer import dumps
+from tofcut.driver.conveyor.config import load_conveyor_config
 from tofcut.sim import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
@@ -316,44 +315,6 @@ def test_the_weighted_median_follows_the_weight():
     values = np.array([1.0, 2.0, 3.0, 100.0])
     assert weighted_median(values, np.ones(4)) in (2.0, 3.0)
     assert weighted_median(values, np.array([1.0, 1.0, 1.0, 10.0])) == 100.0
-
-
-# --- the map's TOML writer ------------------------------------------------------------------
-
-
-def test_the_toml_writer_round_trips_a_map():
-    doc = {
-        "link": {"port": 'C:\\ports\\"com3"\n', "baudrate": 38400, "timeout_s": 0.1, "parity": "E"},
-        "registers": {"encoder": 100, "counts_per_m": 4096.0, "speed_unit_mps": 1e-05},
-        "belt": {
-            "direction": [1.0, 1.9e-05, -0.0], "normal": [0, -1, -1], "point": [0.0, 0.5, 1.5],
-            "width_m": 0.6, "diverter_m": 1.25,
-        },
-    }  # fmt: skip
-    text = dumps(doc, {"belt": ["speed found: 0.25 m/s"]})
-    assert tomllib.loads(text) == doc
-    assert "# speed found: 0.25 m/s" in text
-    config = parse_conveyor_config(tomllib.loads(text))
-    assert config.link.port == doc["link"]["port"]
-    assert config.belt is not None
-    assert config.belt.width_m == 0.6
-    assert config.diverter_m == 1.25
-
-
-def test_the_toml_writer_writes_plain_values_odd_keys_and_special_floats():
-    doc = {"title": "x", "on": True, "odd key": {"a.b": [1, 2.5, "s", False], "n": math.inf}}
-    back = tomllib.loads(dumps(doc))
-    assert back == doc
-    assert math.isnan(tomllib.loads(dumps({"t": {"x": math.nan}}))["t"]["x"])
-    assert tomllib.loads(dumps({"t": {"c": "\x01\x7f\té"}})) == {"t": {"c": "\x01\x7f\té"}}
-
-
-@pytest.mark.parametrize(
-    "bad", [{"t": {"inner": {"x": 1}}}, {"t": {"x": [[1, 2]]}}, {"t": {"x": None}}, {"": 1}]
-)
-def test_the_toml_writer_refuses_what_a_map_does_not_hold(bad):
-    with pytest.raises(ValueError, match=r"tables within tables|only lists|cannot write|key"):
-        dumps(bad)
 
 
 # --- tofcut calibrate -----------------------------------------------------------------------

@@ -176,6 +176,11 @@ def test_seeds_parse_as_ranges_and_lists():
         parse_seeds("5-3")
 
 
+def cells(row: str) -> list[str]:
+    """A Markdown table row's cells."""
+    return [cell.strip() for cell in row.strip().strip("|").split("|")]
+
+
 def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
     tmp_path, capsys, monkeypatch
 ):
@@ -199,11 +204,43 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
     md = (out / "evaluation.md").read_text()
     assert "| tofcut − baseline |" in md
     assert md in printed
+    # HOTA, DetA and AssA in both tables, the baseline's too, as the JSON has them
+    lines = md.splitlines()
+    head = cells(next(x for x in lines if x.startswith("| seed |")))
+    for tracker in ("tofcut", "baseline"):
+        for name in ("MOTA", "IDF1", "HOTA", "DetA", "AssA", "switches", "mask IoU"):
+            assert f"{tracker} {name}" in head
+        scores = doc["lines"][1]["runs"][tracker]["scores"]
+        row = cells(next(x for x in lines if x.startswith("| 1 |")))
+        for key, name in (("hota", "HOTA"), ("deta", "DetA"), ("assa", "AssA")):
+            shown = f"{scores['by_centroid'][key]:.3f} / {scores['by_iou'][key]:.3f}"
+            assert row[head.index(f"{tracker} {name}")] == shown
+    family_head = cells(next(x for x in lines if x.startswith("| tracker |")))
+    for aggregate in doc["aggregate"]:
+        row = cells(next(x for x in lines if x.startswith(f"| {aggregate['tracker']} |")))
+        for key, name in (("median_hota", "median HOTA"), ("median_assa", "median AssA")):
+            shown = f"{aggregate['by_centroid'][key]:.3f} / {aggregate['by_iou'][key]:.3f}"
+            assert row[family_head.index(name)] == shown
     # the captures are recorded --bare, their truth beside them, and the trackers' outputs
     # score the same through `evaluate`
     seed0 = work / "conveyor" / "seed-0"
     assert set(CaptureReader(seed0 / "capture.tofcap").capture.metadata) == set(CAMERA_KEYS)
     assert len(load_truth(seed0 / "capture.truth.npz")) == 20
+    # the baseline stamps its rows and masks as tofcut does: run-wide index, the camera's
+    # sequence and time, the host's
+    stamps = ("frame", "seq", "device_time_us", "host_time_ns")
+    rows = {
+        tracker: [json.loads(x) for x in (seed0 / f"{tracker}.tracks.jsonl").open()]
+        for tracker in ("tofcut", "baseline")
+    }
+    assert [list(r)[:4] for r in rows["baseline"]] == [list(stamps)] * 20
+    assert [[r[k] for k in stamps] for r in rows["baseline"]] == [
+        [r[k] for k in stamps] for r in rows["tofcut"]
+    ]
+    assert [r["frame"] for r in rows["baseline"]] == list(range(20))
+    for key in ("frame", "seq"):
+        masks = [np.load(seed0 / f"{tracker}.masks.npz")[key] for tracker in rows]
+        assert masks[0].tolist() == masks[1].tolist()
     js = tmp_path / "one.json"
     assert main(["evaluate", str(seed0 / "capture.tofcap"), "--tracks",
                  str(seed0 / "baseline.tracks.jsonl"), "--masks",

@@ -32,8 +32,6 @@ FORBIDDEN = [
     ("tofcut.tools.pipeline", "tofcut.tools.batch"),
     ("tofcut.tools.batch", "tofcut.tools.commands"),
     ("tofcut.tools.batch", "tofcut.tools.evaluation"),
-    # the multi-object tracker does not use the paper's single-target segmentation
-    ("tofcut.tracker.tracker", "tofcut.tracker.paper"),
     # testing (the pytest plugin) is on top, beside the commands: nothing imports it, and it
     # opens cameras by the pipeline's source names, not through a command or the tracker
     ("tofcut.driver", "tofcut.testing"),
@@ -77,6 +75,21 @@ def test_no_layer_imports_upwards_or_sideways(graph, importer, imported):
     assert not chains, f"{importer} reaches {imported}: " + "; ".join(
         " → ".join(chain) for chain in sorted(chains)
     )
+
+
+def test_no_tracker_module_imports_the_papers_segmentation(graph):
+    """The multi-object tracker does not use the paper's single-target segmentation: no module
+    of `tofcut.tracker` outside `tracker.paper` reaches it (the paper takes the tracker's
+    neighbourhood and union-find, the other way)."""
+    paper = "tofcut.tracker.paper"
+    tracker = sorted(graph.find_children("tofcut.tracker") - {paper})
+    assert {"tofcut.tracker.tracker", "tofcut.tracker.roster", "tofcut.tracker.cut"} < set(tracker)
+    reached = [
+        " → ".join(chain)
+        for module in tracker
+        for chain in sorted(graph.find_shortest_chains(importer=module, imported=paper))
+    ]
+    assert not reached, "the tracker reaches the paper: " + "; ".join(reached)
 
 
 def test_no_command_imports_another(graph):

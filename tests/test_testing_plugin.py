@@ -12,7 +12,9 @@ from pathlib import Path
 import pytest
 
 from tofcut.driver import Camera, TofcutError
+from tofcut.driver.capture import CaptureReader
 from tofcut.testing import CameraRig, ConveyorRig, RigError, emulated_camera, emulated_conveyor
+from tofcut.tools.cli import main
 
 pytest_plugins = ["pytester"]
 
@@ -21,22 +23,27 @@ WAIT_S = 5.0
 """Upper bound of every wait; each returns as soon as its condition holds."""
 
 
-def example_tests() -> str:
-    """The example test docs/testing.md tells a user to copy (its first python block)."""
+def example_tests() -> tuple[str, str]:
+    """The example tests docs/testing.md tells a user to copy: the first python block, and
+    the one on a recording of the line (which runs with the first block's imports)."""
     text = (ROOT / "docs" / "testing.md").read_text()
-    (block, *_) = re.findall(r"```python\n(.*?)```", text, re.S)
-    return block
+    (block, recorded, *_) = re.findall(r"```python\n(.*?)```", text, re.S)
+    return block, recorded
 
 
 # --- the plugin as a user meets it ----------------------------------------------------------
 
 
-def test_the_documented_example_passes_in_a_project_of_its_own(pytester):
+def test_the_documented_examples_pass_in_a_project_of_their_own(pytester, capture):
     """pytest finds the plugin by its entry point, in a fresh process, as in a user's
-    project; the example in docs/testing.md passes there as it is written."""
-    pytester.makepyfile(test_line=example_tests())
+    project; the examples in docs/testing.md pass there as they are written (the recorded
+    line is the test pattern's capture)."""
+    block, recorded = example_tests()
+    (pytester.path / "tests" / "data").mkdir(parents=True)
+    (pytester.path / "tests" / "data" / "line.tofcap").write_bytes(capture.read_bytes())
+    pytester.makepyfile(test_line=block + "\n\n" + recorded)
     result = pytester.runpytest_subprocess("-q", "-p", "no:cacheprovider")
-    result.assert_outcomes(passed=len(re.findall(r"^def test_", example_tests(), re.M)))
+    result.assert_outcomes(passed=len(re.findall(r"^def test_", block + recorded, re.M)))
 
 
 def test_a_project_that_does_not_use_it_imports_nothing_of_tofcut(pytester):
@@ -131,24 +138,68 @@ def test_unplugged_for_the_block_and_held_by_another_program_on_return(tofcut_ca
     assert fault.reconnects == 1
 
 
-@pytest.mark.parametrize(
-    ("fault", "args", "counts"),
-    [
-        ("stalled", {}, {"stalls_cleared": 1, "lost": 0}),
-        ("stalled", {"after_packets": 3}, {"stalls_cleared": 1, "lost": 1}),
-        ("timing_out", {"reads": 2}, {"read_timeouts": 2, "lost": 0}),
-        ("damaged", {"kind": "truncate"}, {"damaged": 1, "lost": 1}),
-        ("damaged", {"kind": "drop-packet", "frames": 2}, {"damaged": 2, "lost": 2}),
-        ("fifo_overflow", {"frames": 10}, {"lost": 10, "fifo_overflows": 1}),
-        ("hung", {}, {"reconnects": 1}),
-    ],
-)
+FAULT_COSTS = [
+    ("stalled", {}, {"stalls_cleared": 1, "lost": 0}),
+    ("stalled", {"after_packets": 3}, {"stalls_cleared": 1, "lost": 1}),
+    ("timing_out", {"reads": 2}, {"read_timeouts": 2, "lost": 0}),
+    ("damaged", {"kind": "truncate"}, {"damaged": 1, "lost": 1}),
+    ("damaged", {"kind": "drop-packet", "frames": 2}, {"damaged": 2, "lost": 2}),
+    ("fifo_overflow", {"frames": 10}, {"lost": 10, "fifo_overflows": 1}),
+    ("hung", {}, {"reconnects": 1}),
+]
+
+
+@pytest.mark.parametrize(("fault", "args", "counts"), FAULT_COSTS)
 def test_each_fault_costs_what_the_drill_says(tofcut_camera, fault, args, counts):
     list(tofcut_camera.frames(count=2))
     with getattr(tofcut_camera, fault)(**args) as window:
         assert len(list(tofcut_camera.frames(count=4))) == 4
     assert {name: getattr(window, name) for name in counts} == counts
     assert window.frames == 4
+
+
+# --- a capture, replayed by the camera fixture ----------------------------------------------
+
+
+CAPTURED = 40
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory) -> Path:
+    """40 frames of the test pattern, recorded fast."""
+    path = tmp_path_factory.mktemp("plugin") / "pattern.tofcap"
+    argv = ["record", "emulator:test-pattern", "--fast", "--frames", str(CAPTURED)]
+    assert main([*argv, "-o", str(path)]) == 0
+    return path
+
+
+@pytest.mark.parametrize(("fault", "args", "counts"), FAULT_COSTS)
+def test_a_replayed_capture_costs_what_a_scene_does(tofcut_camera_factory, capture, fault,
+                                                    args, counts):  # fmt: skip
+    camera = tofcut_camera_factory(capture)
+    recorded = [raw.header.payload_crc for raw in CaptureReader(capture).raw_frames()]
+    got = [raw.header.payload_crc for raw in camera.raw_frames(count=2)]
+    with getattr(camera, fault)(**args) as window:
+        got += [raw.header.payload_crc for raw in camera.raw_frames(count=4)]
+    assert {name: getattr(window, name) for name in counts} == counts
+    assert window.frames == 4
+    index = [recorded.index(crc) for crc in got]
+    assert index == sorted(index)  # the recorded frames, in order, less what the fault cost
+    if fault != "hung":  # (a hung camera's silence is time: its frames pass unseen)
+        assert index[-1] + 1 == len(got) + window.lost
+
+
+def test_a_replay_ends_with_its_capture_or_loops(tofcut_camera_factory, capture):
+    once = tofcut_camera_factory(capture)
+    assert once.replay is not None
+    assert once.scene == str(capture)
+    assert len(list(once.frames(count=3))) == 3
+    with once.unplugged(seconds=0.1) as fault:
+        frames = list(once.frames())  # to the capture's end, through the outage
+    assert fault.reconnects == 1
+    assert len(frames) == CAPTURED - 3  # on the virtual clock an outage takes no time
+    looped = tofcut_camera_factory(capture, loop=True)
+    assert len(list(looped.frames(count=2 * CAPTURED))) == 2 * CAPTURED
 
 
 def test_faults_refuse_what_they_cannot_do_in_one_line(tofcut_camera):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import numbers
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, get_type_hints
 
 from tofcut.tracker.background import BackgroundParams
 from tofcut.tracker.errors import SegmentError
@@ -76,6 +78,16 @@ class TrackerParams:
     limb). A property of the targets, chosen by the user: not inferred from the belt."""
 
     def __post_init__(self) -> None:
+        for name, kind in (("background", BackgroundParams), ("motion", MotionParams)):
+            nested = getattr(self, name)
+            if not isinstance(nested, kind):
+                raise SegmentError(
+                    f"TrackerParams.{name} must be a {kind.__name__}, got {nested!r}"
+                )
+            if floats := _floats(nested):
+                object.__setattr__(self, name, replace(nested, **floats))
+        for name, number in _floats(self).items():
+            object.__setattr__(self, name, number)
         positive = {
             "beta": self.beta,
             "object_cost": self.object_cost,
@@ -105,3 +117,22 @@ class TrackerParams:
             raise SegmentError("confirm_frames and min_pixels must be at least 1")
         if not 0.0 < self.whole_fraction <= 1.0:
             raise SegmentError("whole_fraction must be in (0, 1]")
+
+
+def _floats(params: object) -> dict[str, Any]:
+    """The float fields of a parameters dataclass given as another kind of number (an int,
+    a numpy scalar), as floats: an int would reach the compiled kernels as int64 and compile
+    them again, mid-run. SegmentError for a float field that is not a number (or a bool)."""
+    hints = get_type_hints(type(params))
+    floats: dict[str, Any] = {}
+    for f in fields(params):  # type: ignore[arg-type]
+        value = getattr(params, f.name)
+        if hints[f.name] is not float or type(value) is float:
+            continue
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise SegmentError(f"{type(params).__name__}.{f.name} must be a number, got {value!r}")
+        try:
+            floats[f.name] = float(value)
+        except OverflowError:
+            raise SegmentError(f"{type(params).__name__}.{f.name} is too large: {value}") from None
+    return floats

@@ -56,6 +56,7 @@ def main() -> None:
                 sequence=sequence,
             )
             sequence += 1
+            # the same loop in every example, on purpose: each stands alone, to be copied
             for track in tracker.update(frame).tracks:
                 x, y, z = track.centroid
                 vx, vy, vz = track.velocity

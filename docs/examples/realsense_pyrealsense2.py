@@ -57,6 +57,7 @@ def main() -> None:
                 time_s=depth.get_timestamp() / 1000.0,  # milliseconds
                 sequence=depth.get_frame_number(),
             )
+            # the same loop in every example, on purpose: each stands alone, to be copied
             for track in tracker.update(frame).tracks:
                 x, y, z = track.centroid
                 vx, vy, vz = track.velocity

@@ -31,9 +31,9 @@ from collections import deque
 from collections.abc import Generator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from types import TracebackType
 from typing import IO, Any
 
+from tofcut._closing import Closing
 from tofcut.driver.belt import MAX_BELT_SPEED_MPS, BeltHistory, BeltReading, KnownBelt
 from tofcut.driver.conveyor.exposure_clock import ExposureClock
 from tofcut.driver.errors import CaptureError, ConfigError
@@ -90,7 +90,7 @@ PENDING_KEPT = 10_000
 """Lines kept before the log's header is written (10 s of readings at 1000 polls a second)."""
 
 
-class BeltLogWriter:
+class BeltLogWriter(Closing):
     """Writes a conveyor log as readings arrive; `reading` is a `ConveyorClient` listener.
 
     Lines written before `begin` (readings that came while the link opened) are kept and go
@@ -181,17 +181,6 @@ class BeltLogWriter:
                 self._file.close()
             except OSError as exc:
                 self.error = self.error or f"{self.path}: {exc.strerror or exc}"
-
-    def __enter__(self) -> BeltLogWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def _dumps(doc: dict[str, Any]) -> str:

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from tofcut.driver.belt import BeltGeometry
-from tofcut.driver.config_file import as_float, read_toml, unknown_keys
+from tofcut.driver.config_file import as_float, load_toml, unknown_keys
 from tofcut.driver.config_file import show as _show
 from tofcut.driver.errors import ConfigError
 
@@ -226,17 +226,7 @@ class ConveyorConfig:
 
 def load_conveyor_config(path: str | Path) -> ConveyorConfig:
     """Read a conveyor TOML file (format in this module's docstring)."""
-    p = Path(path)
-    try:
-        doc = read_toml(p, MAX_FILE_BYTES)
-    except OSError as exc:
-        raise ConfigError(f"{p}: {exc.strerror or exc}") from None
-    except ValueError as exc:
-        raise ConfigError(f"{p}: {exc}") from None
-    try:
-        return parse_conveyor_config(doc)
-    except ConfigError as exc:
-        raise ConfigError(f"{p}: {exc}") from None
+    return load_toml(path, MAX_FILE_BYTES, parse_conveyor_config, ConfigError)
 
 
 def parse_conveyor_config(doc: dict[str, Any]) -> ConveyorConfig:

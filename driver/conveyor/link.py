@@ -21,13 +21,13 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, fields, replace
 from functools import partial
-from types import TracebackType
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusException
 from pymodbus.framer import FramerType
 from pymodbus.pdu import ModbusPDU
 
+from tofcut._closing import Closing
 from tofcut.driver.belt import BeltHistory, BeltReading, unwrap_count
 from tofcut.driver.conveyor.config import LinkSettings, RegisterMap
 from tofcut.driver.errors import ConfigError, LinkError
@@ -82,7 +82,7 @@ class _Failed(Exception):
     """A request failed after every retry (or the port went away); already counted."""
 
 
-class ConveyorClient:
+class ConveyorClient(Closing):
     """A conveyor controller over Modbus; `open()` (or `with`) starts its polling thread."""
 
     def __init__(
@@ -192,14 +192,6 @@ class ConveyorClient:
 
     def __enter__(self) -> ConveyorClient:
         return self.open()
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     # --- what the rest of the program reads -----------------------------------------------
 

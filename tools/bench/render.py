@@ -1,6 +1,6 @@
 """Bench stage: how fast the emulator renders each built-in scene and the crowds of 1 to 20
 boxes, at 176×144: the median CPU time of a frame over consecutive frames at the scene's
-frame rate (as `tools.bench.render_rate.render_rate` walks them, on the bench's clock)."""
+frame rate, on the bench's clock."""
 
 from __future__ import annotations
 

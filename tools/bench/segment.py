@@ -19,8 +19,8 @@ import time
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from tofcut._types import F64, U8, B
 from tofcut.driver.frames import Frame
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
@@ -34,12 +34,9 @@ INSTALL_HINT = (
     "grabCut needs OpenCV: `pip install 'tofcut[bench]'` (or `pip install "
     "opencv-python-headless`); `scripts/uv run` installs it with the dev group"
 )
-BOOL = npt.NDArray[np.bool_]
 
 
-def _u8(
-    values: npt.NDArray[np.float64], valid: BOOL, invert: bool = False
-) -> npt.NDArray[np.uint8]:
+def _u8(values: F64, valid: B, invert: bool = False) -> U8:
     lo, hi = np.percentile(values[valid], [1, 99]) if valid.any() else (0.0, 1.0)
     scaled = np.clip((np.nan_to_num(values) - lo) / max(hi - lo, 1e-12), 0.0, 1.0)
     if invert:
@@ -49,7 +46,7 @@ def _u8(
     return out
 
 
-def grabcut_image(frame: Frame) -> npt.NDArray[np.uint8]:
+def grabcut_image(frame: Frame) -> U8:
     """(H, W, 3) uint8: intensity, range (near is bright) and amplitude."""
     v = frame.valid
     channels = (
@@ -60,7 +57,7 @@ def grabcut_image(frame: Frame) -> npt.NDArray[np.uint8]:
     return np.ascontiguousarray(np.stack(channels, axis=-1))
 
 
-def seed_rect(mask: BOOL) -> tuple[int, int, int, int]:
+def seed_rect(mask: B) -> tuple[int, int, int, int]:
     """(x, y, w, h): the mask's bounding box grown by a quarter of its size on every side."""
     rows, cols = np.nonzero(mask)
     h, w = mask.shape
@@ -71,7 +68,7 @@ def seed_rect(mask: BOOL) -> tuple[int, int, int, int]:
     return (int(u0), int(v0), int(u1 - u0), int(v1 - v0))
 
 
-def grabcut(image: npt.NDArray[np.uint8], rect: tuple[int, int, int, int]) -> BOOL:
+def grabcut(image: U8, rect: tuple[int, int, int, int]) -> B:
     """OpenCV's grabCut from a rectangle; the (probable) foreground."""
     import cv2
 
@@ -80,13 +77,11 @@ def grabcut(image: npt.NDArray[np.uint8], rect: tuple[int, int, int, int]) -> BO
     bgd = np.zeros((1, 65), np.float64)
     fgd = np.zeros((1, 65), np.float64)
     cv2.grabCut(image, mask, rect, bgd, fgd, GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_RECT)
-    foreground: BOOL = (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
+    foreground: B = (mask == cv2.GC_FGD) | (mask == cv2.GC_PR_FGD)
     return foreground
 
 
-def timed_grabcut(
-    image: npt.NDArray[np.uint8], rect: tuple[int, int, int, int], repeats: int
-) -> tuple[float, BOOL]:
+def timed_grabcut(image: U8, rect: tuple[int, int, int, int], repeats: int) -> tuple[float, B]:
     """Median wall time of grabCut over `repeats` runs after one warm-up, and its mask."""
     mask = grabcut(image, rect)
     seconds = []

@@ -152,7 +152,8 @@ def source(*, captures: bool) -> Callable[[str], SourceSpec]:
             if not captures:
                 raise argparse.ArgumentTypeError(
                     f"{text}: this command reads from a camera (usb, usb:SERIAL or "
-                    "emulator[:SCENE]); 'tofcut track FILE.tofcap' tracks a capture"
+                    "emulator[:SCENE]); 'tofcut track FILE.tofcap' tracks a capture, "
+                    f"emulator:{text} replays it through the emulated camera"
                 )
             existing_file(text, "capture")
         try:

@@ -16,10 +16,10 @@ from typing import Any
 
 from tofcut.driver.camera import Camera
 from tofcut.driver.conveyor.config import parse_conveyor_config
-from tofcut.driver.conveyor.toml_writer import dumps
 from tofcut.driver.errors import ConfigError, TofcutError
+from tofcut.driver.toml_writer import dumps
 from tofcut.tools.commands.options import add_camera_options, config_from_args
-from tofcut.tools.pipeline.sources import SourceError, SourceSpec, open_source
+from tofcut.tools.pipeline.sources import SourceError, SourceSpec, configure, open_source
 from tofcut.tracker.belt_finder import BeltEstimate, find_belt
 
 DEFAULT_SECONDS = 20.0
@@ -79,9 +79,7 @@ def run(args: argparse.Namespace) -> int:
     device = opened.device
     try:
         if isinstance(device, Camera):
-            asked = config_from_args(args, device.config)
-            if asked is not None:
-                device.configure(asked)
+            configure(opened, config_from_args(args, device.config))
         estimate = find_belt(device.frames(), args.seconds)
     finally:
         opened.close()

@@ -10,7 +10,7 @@ from tofcut.driver.calibration import Calibration
 from tofcut.driver.camera import Camera
 from tofcut.driver.protocol import MOD_FREQ_MHZ, Register, unambiguous_range_m
 from tofcut.tools.commands.options import add_camera_options, add_source_argument, config_from_args
-from tofcut.tools.pipeline.sources import open_source
+from tofcut.tools.pipeline.sources import configure, open_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -90,9 +90,7 @@ def run(args: argparse.Namespace) -> int:
         )
         print(f"sensor {info.width}x{info.height}  max {info.max_fps} fps")
         if isinstance(dev, Camera):
-            asked = config_from_args(args, dev.config)
-            if asked is not None:
-                dev.configure(asked)
+            configure(opened, config_from_args(args, dev.config))
             config = dev.config
             print(f"configuration: {config.describe()}")
             print(f"  unambiguous range {unambiguous_range_m(config.mod_freq_code):.3f} m")
@@ -115,21 +113,14 @@ def info_json(args: argparse.Namespace) -> dict[str, Any]:
         out: dict[str, Any] = {
             "source": args.source.arg if args.source.kind == "capture" else str(args.source),
             "kind": "camera" if isinstance(dev, Camera) else "capture",
-            "serial": info.serial_text,
-            "firmware": info.firmware,
-            "protocol": info.protocol,
-            "width": info.width,
-            "height": info.height,
-            "max_fps": info.max_fps,
+            **info.described(),
             "configuration": None,
             "registers": {},
             "temperature_c": None,
             "records": None,
         }
         if isinstance(dev, Camera):
-            asked = config_from_args(args, dev.config)
-            if asked is not None:
-                dev.configure(asked)
+            configure(opened, config_from_args(args, dev.config))
             config = dev.config
             out["configuration"] = {
                 "mod_freq_mhz": config.mod_freq_mhz,

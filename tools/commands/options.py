@@ -53,6 +53,16 @@ def add_camera_options(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_loop_option(parser: argparse.ArgumentParser) -> None:
+    """`--loop`, for the commands that stream a replayed capture (`live`, `track`, `record`)."""
+    parser.add_argument(
+        "--loop",
+        action="store_true",
+        help="emulator:FILE.tofcap: replay the capture over and over (default: the stream "
+        "ends with it)",
+    )
+
+
 def config_from_args(args: argparse.Namespace, current: CameraConfig) -> CameraConfig | None:
     """The configuration the options ask for, or None when none was given."""
     if args.mod_freq is None and args.integration is None and args.fps is None and not args.trigger:

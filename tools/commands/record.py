@@ -27,12 +27,17 @@ from tofcut.driver.protocol import WRITABLE_REGISTERS
 from tofcut.driver.stream import StreamStats
 from tofcut.sim.truth import FrameTruth, save_truth, truth_path
 from tofcut.tools.commands.arguments import output_file, positive_float, positive_int
-from tofcut.tools.commands.options import add_camera_options, add_source_argument, config_from_args
+from tofcut.tools.commands.options import (
+    add_camera_options,
+    add_loop_option,
+    add_source_argument,
+    config_from_args,
+)
 from tofcut.tools.commands.progress import Progress
 from tofcut.tools.pipeline.belt_source import BeltResolution, resolve_run_belt, warn
 from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_options, open_conveyor
 from tofcut.tools.pipeline.losses import describe_losses, stats_summary
-from tofcut.tools.pipeline.sources import Opened, SourceError, open_source
+from tofcut.tools.pipeline.sources import Opened, SourceError, configure, open_source
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -54,6 +59,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "is still written beside the capture",
     )  # fmt: skip
     add_camera_options(p)
+    add_loop_option(p)
     add_conveyor_options(p, rejects=False)
     p.set_defaults(func=run)
 
@@ -72,14 +78,12 @@ def run(args: argparse.Namespace) -> int:
         args.source, realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=args.reconnect,
         on_event=_print_event if args.reconnect else None,
-        virtual_host_clock=not (args.conveyor or args.conveyor_emulator),
+        virtual_host_clock=not (args.conveyor or args.conveyor_emulator), loop=args.loop,
     )  # fmt: skip
     cam = opened.device
     assert isinstance(cam, Camera)
     with contextlib.closing(opened):  # the camera, and the emulator's process if any
-        asked = config_from_args(args, cam.config)
-        if asked is not None:
-            cam.configure(asked)
+        configure(opened, config_from_args(args, cam.config))
         resolution = resolve_run_belt(args, opened)
         for text in resolution.warnings:
             warn(text)
@@ -120,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
 def belt_metadata(opened: Opened, resolution: BeltResolution) -> dict[str, Any]:
     """The source's metadata for the capture, with the belt the run knows at its start (and
     where it came from) in place of the scene's own."""
-    meta = {k: v for k, v in opened.metadata.items() if k not in ("belt", "belt_source")}
+    kept_here = ("belt", "belt_source", "source")  # (a replayed capture's own are replaced)
+    meta = {k: v for k, v in opened.metadata.items() if k not in kept_here}
     if resolution.belt is not None:
         meta["belt"] = resolution.belt.to_dict()
         meta["belt_source"] = resolution.belt.source

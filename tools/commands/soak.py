@@ -40,7 +40,13 @@ from tofcut.tools.pipeline.rerun_sink import RerunSink
 from tofcut.tools.pipeline.rerun_target import RerunTarget
 from tofcut.tools.pipeline.run import EventRelay, LiveFeed, Output, RunSummary, run
 from tofcut.tools.pipeline.run_belt import RunBelt
-from tofcut.tools.pipeline.sources import Opened, SourceError, SourceSpec, open_source
+from tofcut.tools.pipeline.sources import (
+    Opened,
+    SourceError,
+    SourceSpec,
+    configure,
+    open_source,
+)
 from tofcut.tracker.tracker import Tracker
 
 MAX_GROWTH_MIB = 10.0
@@ -71,7 +77,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         ),
     )
     p.add_argument("--minutes", type=float, default=1.0, help="how long to run (default 1)")
-    p.add_argument("--scene", default="conveyor", help="the emulated scene (default conveyor)")
+    p.add_argument(
+        "--scene", default="conveyor",
+        help="the emulated scene (default conveyor), or a capture FILE.tofcap the emulated "
+        "camera replays over and over",
+    )  # fmt: skip
     p.add_argument(
         "--fault-every", type=float, default=3.0, metavar="S",
         help="mean quiet time between one fault settling and the next, s (default 3)",
@@ -126,13 +136,12 @@ def soak(args: argparse.Namespace) -> int:
     opened = open_source(
         SourceSpec("emulator", args.scene), realtime=not args.fast, seed=args.seed,
         amplitude_threshold=args.amplitude_threshold, reconnect=True, on_event=relay.post,
+        loop=True,  # a capture replays for as long as the soak runs
     )  # fmt: skip
     camera = opened.device
     assert isinstance(camera, Camera)
     try:
-        asked = config_from_args(args, camera.config)
-        if asked is not None:
-            camera.configure(asked)
+        configure(opened, config_from_args(args, camera.config))
         resolution = resolve_run_belt(args, opened)
         line = open_conveyor(args, opened, resolution=resolution)
         try:

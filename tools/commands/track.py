@@ -16,14 +16,18 @@ from tofcut.tools.batch.captures import Tracked, run_names, track_capture
 from tofcut.tools.batch.pool import Pool, add_batch_options
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
 from tofcut.tools.commands.arguments import UsageError, capture_file
-from tofcut.tools.commands.options import add_camera_options, add_source_argument
+from tofcut.tools.commands.options import (
+    add_camera_options,
+    add_loop_option,
+    add_source_argument,
+)
 from tofcut.tools.commands.tracking import add_tracking_options, track
 from tofcut.tools.evaluation.family import failed_exit, say, table, write_report
 from tofcut.tools.pipeline.conveyor_line import add_conveyor_options
 
 ONE_RUN_ONLY = ("tracks_out", "mot_out", "mots_out", "masks_out", "target_pixel",
                 "target_point", "scene_target", "save", "connect", "serve", "spawn", "stdout",
-                "conveyor", "conveyor_emulator")  # fmt: skip
+                "conveyor", "conveyor_emulator", "loop")  # fmt: skip
 """Options of one run, refused for a batch (its outputs are named in --out)."""
 
 
@@ -36,6 +40,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )  # fmt: skip
     add_tracking_options(p)
     add_camera_options(p)
+    add_loop_option(p)
     add_conveyor_options(p)
     g = p.add_argument_group("a batch of captures (SOURCE and CAPTURE ... all captures)")
     g.add_argument(

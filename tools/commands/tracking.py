@@ -59,7 +59,13 @@ from tofcut.tools.pipeline.run import (
 )
 from tofcut.tools.pipeline.run_belt import RunBelt
 from tofcut.tools.pipeline.settings import applied, one_setting
-from tofcut.tools.pipeline.sources import Opened, SourceError, open_source, scene_target
+from tofcut.tools.pipeline.sources import (
+    Opened,
+    SourceError,
+    configure,
+    open_source,
+    scene_target,
+)
 from tofcut.tools.pipeline.status import PipelineStatus
 from tofcut.tracker.belt_finder import BeltFinder
 from tofcut.tracker.belt_prior import VelocityPrior
@@ -155,6 +161,7 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
         opened = open_source(
             args.source, realtime=not args.fast, seed=args.seed,
             amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
+            loop=args.loop,
         )  # fmt: skip
     finally:
         startup().done()
@@ -218,7 +225,7 @@ def _track(
         events.start([lambda e: sink.event(str(e), event_level(e)), _print_event])
         with CtrlC() as ctrl_c:
             summary = _run(
-                args, live, device, tracker, sink, events, line, run_belt.at_frame,
+                args, live, opened, tracker, sink, events, line, run_belt.at_frame,
                 lambda: ctrl_c.requested,
             )  # fmt: skip
         summary.interrupted |= ctrl_c.requested
@@ -250,6 +257,8 @@ def _track(
         say(found)
     if replay is not None:
         say(replay.summary())
+    if opened.replay is not None:
+        say(opened.replay.describe())
     if line is not None:
         say(line.summary())
     wait_while_serving(args)
@@ -260,23 +269,26 @@ def _track(
     if summary.interrupted:
         say(f"stopped by Ctrl-C after {summary.frames} frames; the outputs hold every one")
         return 130
-    return _damage_verdict(args, device, summary, say)
+    return _damage_verdict(args, opened, summary, say)
 
 
 def _damage_verdict(
-    args: argparse.Namespace,
-    device: Camera | CaptureReader,
-    summary: RunSummary,
-    say: Callable[..., None],
+    args: argparse.Namespace, opened: Opened, summary: RunSummary, say: Callable[..., None]
 ) -> int:
-    """The closing line on what a damaged capture made the run skip, and the exit status:
-    1 when frames were skipped or none was tracked, unless `--keep-going`."""
-    skipped = []
+    """The closing line on what a damaged capture (read, or replayed by the emulated
+    camera) made the run skip, and the exit status: 1 when frames were skipped or none was
+    tracked, unless `--keep-going`."""
+    device = opened.device
+    damaged = truncated = 0
     if isinstance(device, CaptureReader):
-        if device.stats.damaged:
-            skipped.append(f"{device.stats.damaged} damaged frames")
-        if device.truncated_bytes:
-            skipped.append(f"{device.truncated_bytes} bytes cut short at the end of the file")
+        damaged, truncated = device.stats.damaged, device.truncated_bytes
+    elif opened.replay is not None:
+        damaged, truncated = opened.replay.damaged, opened.replay.truncated_bytes
+    skipped = []
+    if damaged:
+        skipped.append(f"{damaged} damaged frames")
+    if truncated:
+        skipped.append(f"{truncated} bytes cut short at the end of the file")
     if not skipped and summary.frames > 0:
         return 0
     what = f"skipped {' and '.join(skipped)}" if skipped else "nothing skipped"
@@ -311,7 +323,7 @@ def _print_event(event: DeviceEvent) -> None:
 def _run(
     args: argparse.Namespace,
     live: bool,
-    device: Camera | CaptureReader,
+    opened: Opened,
     tracker: Tracker,
     sink: RerunSink | NullSink,
     events: EventRelay,
@@ -320,6 +332,7 @@ def _run(
     stop_asked: Callable[[], bool] = lambda: False,
 ) -> RunSummary:
     """The pipeline on a capture (progress bar) or a camera (reader thread, status line)."""
+    device = opened.device
     outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
     if args.tracks_out:
         outputs.append(TracksWriter(args.tracks_out))
@@ -352,15 +365,14 @@ def _run(
             tracker, outputs, stats=lambda: device.stats, dropped=lambda: 0, prior=prior,
             should_stop=should_stop, events=events,
         )  # fmt: skip
-    asked = config_from_args(args, device.config)
-    if asked is not None:
-        device.configure(asked)
+    configure(opened, config_from_args(args, device.config))
     print(
         f"camera {device.serial} ({args.source}): {device.config.describe()}",
         file=sys.stderr if args.stdout else sys.stdout,
     )
     outputs.append(StatusLine(Progress(None, "live"), tracker))
-    feed = LiveFeed(device).start()
+    fast = args.fast and args.source.kind == "emulator"  # a virtual clock: no frame to lose
+    feed = LiveFeed(device, wait_for_room=fast).start()
     rate = device.config.frame_rate
     outputs.append(
         PaceWatch(

@@ -1,7 +1,9 @@
 """A plain baseline tracker: depth background subtraction, 3D-cut components, Norfair.
 
 `python -m tofcut.tools.evaluation.baseline CAPTURE.tofcap --tracks-out T.jsonl --masks-out M.npz`
-writes the formats `tofcut track` writes, so `tofcut evaluate` scores both alike. It reads
+writes the formats `tofcut track` writes, so `tofcut evaluate` scores both alike: each row
+and mask stamped with the run-wide frame index, the camera's sequence and time and the
+host time (`tofcut.tools.pipeline.frame_stamp`). It reads
 nothing but the camera's stream (no metadata) and its parameters are the same on every line:
 it is the number a graph cut has to beat.
 
@@ -36,6 +38,7 @@ from tofcut._types import F64
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.frames import Frame
+from tofcut.tools.pipeline.frame_stamp import FrameStamp
 from tofcut.tracker.stats import MAD_TO_SIGMA
 
 LEARN_FRAMES = 10
@@ -120,7 +123,7 @@ def track(frames: Iterable[Frame]) -> tuple[list[dict[str, Any]], list[npt.NDArr
     scene = EmptyScene()
     last: dict[int, tuple[float, F64]] = {}
     records, masks = [], []
-    for frame in frames:
+    for n, frame in enumerate(frames):
         labels = np.zeros(frame.shape, np.uint16)
         tracks: list[dict[str, Any]] = []
         stands_out = scene.stands_out(frame)
@@ -148,8 +151,8 @@ def track(frames: Iterable[Frame]) -> tuple[list[dict[str, Any]], list[npt.NDArr
                                "velocity": velocity.tolist(),
                                "bbox": [int(u.min()), int(v.min()), int(u.max()) + 1,
                                         int(v.max()) + 1], "pixels": int(mine.sum())})  # fmt: skip
-        records.append({"seq": frame.sequence, "device_time_us": frame.device_time_us,
-                        "tracks": tracks})  # fmt: skip
+        stamp = FrameStamp(n, frame.sequence, frame.device_time_us, frame.host_time_ns)
+        records.append({**stamp.to_json(), "tracks": tracks})
         masks.append(labels)
     return records, masks
 
@@ -179,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     shape = (reader.info.height, reader.info.width)
     labels = np.array(masks, np.uint16).reshape(-1, *shape)
     seqs = np.array([r["seq"] for r in records], np.int64)
-    np.savez_compressed(args.masks_out, labels=labels, seq=seqs)
+    index = np.array([r["frame"] for r in records], np.int64)
+    np.savez_compressed(args.masks_out, labels=labels, seq=seqs, frame=index)
     ids = {t["id"] for r in records for t in r["tracks"]}
     print(f"baseline: tracked {len(records)} frames: {len(ids)} tracks; wrote {args.tracks_out}, "
           f"{args.masks_out}")  # fmt: skip

@@ -350,18 +350,29 @@ class FamilyScore:
     """The 10th percentile of the lines' MOTA (linear interpolation): how bad the bad lines are."""
     id_switches: int
     """Summed over the lines."""
+    median_hota: float
+    median_deta: float
+    median_assa: float
 
     @classmethod
     def of(cls, matchings: Sequence[Any]) -> FamilyScore:
         mota = [m.mota for m in matchings]
+
+        def median(values: Sequence[float]) -> float:
+            return float(np.median(values))
+
         return cls(
-            float(np.median(mota)), float(np.median([m.idf1 for m in matchings])),
+            median(mota), median([m.idf1 for m in matchings]),
             float(np.percentile(mota, 10)), sum(m.id_switches for m in matchings),
+            median([m.hota.hota for m in matchings]), median([m.hota.deta for m in matchings]),
+            median([m.hota.assa for m in matchings]),
         )  # fmt: skip
 
     def to_json(self) -> dict[str, float | int]:
         return {"median_mota": self.median_mota, "median_idf1": self.median_idf1,
-                "p10_mota": self.p10_mota, "id_switches": self.id_switches}  # fmt: skip
+                "p10_mota": self.p10_mota, "id_switches": self.id_switches,
+                "median_hota": self.median_hota, "median_deta": self.median_deta,
+                "median_assa": self.median_assa}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -409,10 +420,18 @@ def _pair(a: float | None, b: float | None, signed: bool = False) -> str:
     return " / ".join("—" if x is None else fmt.format(x) for x in (a, b))
 
 
+FAMILY_COLUMNS = {
+    "median MOTA": "median_mota", "median IDF1": "median_idf1", "median HOTA": "median_hota",
+    "median DetA": "median_deta", "median AssA": "median_assa",
+    "10th-percentile MOTA": "p10_mota",
+}  # fmt: skip
+"""The family table's columns of scores by both matchings (`FamilyScore`'s fields)."""
+
+
 def _difference(x: Aggregate, y: Aggregate) -> list[str]:
     """The family table's row of what tracker `x` scores over `y`."""
     row = [f"{x.tracker} − {y.tracker}", ""]
-    for field in ("median_mota", "median_idf1", "p10_mota"):
+    for field in FAMILY_COLUMNS.values():
         pair = [
             getattr(a, field) - getattr(b, field) if a and b else None
             for a, b in ((x.by_centroid, y.by_centroid), (x.by_iou, y.by_iou))
@@ -422,8 +441,7 @@ def _difference(x: Aggregate, y: Aggregate) -> list[str]:
     return [*row, "", "—" if xi is None or yi is None else f"{xi - yi:+.3f}"]
 
 
-AGGREGATE_HEAD = ["lines", "median MOTA", "median IDF1", "10th-percentile MOTA", "ID switches",
-                  "mean mask IoU"]  # fmt: skip
+AGGREGATE_HEAD = ["lines", *FAMILY_COLUMNS, "ID switches", "mean mask IoU"]
 """The columns of a tracker's scores over a family, after the first (what is scored)."""
 
 
@@ -431,19 +449,22 @@ def aggregate_row(first: str, a: Aggregate) -> list[str]:
     """A row of `AGGREGATE_HEAD` after `first`: each cell by centroid / by mask IoU."""
     fc, fi = a.by_centroid, a.by_iou
     if fc is None or fi is None or a.mean_mask_iou is None:
-        return [first, f"{a.lines} of {a.of}", *["—"] * 5]
-    return [
-        first, f"{a.lines} of {a.of}", _pair(fc.median_mota, fi.median_mota),
-        _pair(fc.median_idf1, fi.median_idf1), _pair(fc.p10_mota, fi.p10_mota),
-        f"{fc.id_switches} / {fi.id_switches}", f"{a.mean_mask_iou:.3f}",
-    ]  # fmt: skip
+        return [first, f"{a.lines} of {a.of}", *["—"] * (len(AGGREGATE_HEAD) - 1)]
+    pairs = [_pair(getattr(fc, f), getattr(fi, f)) for f in FAMILY_COLUMNS.values()]
+    return [first, f"{a.lines} of {a.of}", *pairs, f"{fc.id_switches} / {fi.id_switches}",
+            f"{a.mean_mask_iou:.3f}"]  # fmt: skip
+
+
+SCORE_HEAD = ["MOTA", "IDF1", "HOTA", "DetA", "AssA", "switches", "mask IoU"]
+"""The columns of one run's scores (`score_cells`)."""
 
 
 def score_cells(s: Scores) -> list[str]:
-    """One run's MOTA, IDF1 and ID switches (by centroid / by mask IoU) and mask IoU."""
+    """One run's `SCORE_HEAD`: each by centroid / by mask IoU, but the mask IoU."""
     c, i = s.by_centroid, s.by_iou
-    return [_pair(c.mota, i.mota), _pair(c.idf1, i.idf1), f"{c.id_switches} / {i.id_switches}",
-            f"{s.mask_iou:.3f}"]  # fmt: skip
+    return [_pair(c.mota, i.mota), _pair(c.idf1, i.idf1), _pair(c.hota.hota, i.hota.hota),
+            _pair(c.hota.deta, i.hota.deta), _pair(c.hota.assa, i.hota.assa),
+            f"{c.id_switches} / {i.id_switches}", f"{s.mask_iou:.3f}"]  # fmt: skip
 
 
 def table(rows: Sequence[Sequence[str]]) -> list[str]:
@@ -457,7 +478,7 @@ def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Agg
     trackers = plan.trackers
     head = ["seed", "scene", "frames"]
     for t in trackers:
-        head += [f"{t} MOTA", f"{t} IDF1", f"{t} switches", f"{t} mask IoU"]
+        head += [f"{t} {name}" for name in SCORE_HEAD]
     rows = [head]
     for r in results:
         row = [str(r.seed), r.scene or r.source, str(r.frames or "—")]
@@ -465,12 +486,13 @@ def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Agg
             run = r.run(t)
             s = run.scores if run else None
             if s is None:
-                row += ["failed" if r.errors else "—", "", "", ""]
+                row += ["failed" if r.errors else "—", *[""] * (len(SCORE_HEAD) - 1)]
                 continue
             row += score_cells(s)
         rows.append(row)
     out = ["## Lines", "", *table(rows), "",
-           "MOTA, IDF1 and ID switches: by centroid / by mask IoU.", "",
+           "MOTA, IDF1, HOTA (its detection and association parts DetA and AssA, by "
+           "TrackEval) and ID switches: by centroid / by mask IoU.", "",
            "## Over the family", ""]  # fmt: skip
     fam = [["tracker", *AGGREGATE_HEAD]]
     fam += [aggregate_row(a.tracker, a) for a in aggregates]

@@ -22,9 +22,8 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from tofcut._types import F64, I64
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +52,7 @@ class Hota:
         return {"hota": self.hota, "deta": self.deta, "assa": self.assa, "loca": self.loca}
 
 
-def _dense(ids: Sequence[Sequence[int]]) -> tuple[list[npt.NDArray[np.int64]], int]:
+def _dense(ids: Sequence[Sequence[int]]) -> tuple[list[I64], int]:
     """Ids renumbered 0..n-1 in order of first sight (TrackEval indexes arrays by them)."""
     index: dict[int, int] = {}
     out = [np.array([index.setdefault(int(i), len(index)) for i in f], np.int64) for f in ids]

@@ -16,6 +16,7 @@ from tofcut.tools.batch.pool import Pool
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
 from tofcut.tools.evaluation.family import (
     AGGREGATE_HEAD,
+    SCORE_HEAD,
     Aggregate,
     aggregate_row,
     failed_exit,
@@ -40,15 +41,15 @@ def score_run(runs: Path, gate: float, min_pixels: int, min_iou: float, job: Job
 
 def report(outcomes: Sequence[Outcome[Job, Scores]]) -> tuple[str, dict[str, Any]]:
     """The Markdown and JSON of a batch of runs: a row a run, and all of them."""
-    rows = [["capture", "frames", "MOTA", "IDF1", "switches", "mask IoU"]]
+    rows = [["capture", "frames", *SCORE_HEAD]]
     for o in outcomes:
         s = o.result
-        rows.append([str(o.item[0]), *([str(s.frames), *score_cells(s)] if s else
-                                       ["failed", "", "", "", ""])])  # fmt: skip
+        cells = [str(s.frames), *score_cells(s)] if s else ["failed", *[""] * len(SCORE_HEAD)]
+        rows.append([str(o.item[0]), *cells])
     scored = [o.result for o in outcomes if o.result is not None]
     total = Aggregate.of_scores("runs", scored, len(outcomes))
     out = ["## Runs", "", *table(rows), "",
-           "MOTA, IDF1 and ID switches: by centroid / by mask IoU.", "",
+           "MOTA, IDF1, HOTA, DetA, AssA and ID switches: by centroid / by mask IoU.", "",
            "## All runs", "", *table([["", *AGGREGATE_HEAD], aggregate_row("all", total)]), "",
            "Each cell: by centroid / by mask IoU; ID switches summed over the runs."]  # fmt: skip
     out += failure_sections(

@@ -14,9 +14,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-import numpy.typing as npt
 from PIL import Image, ImageDraw
 
+from tofcut._types import F64, I32, U8, B
 from tofcut.driver.frames import Frame
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
@@ -34,9 +34,6 @@ from tofcut.tracker.paper.segment import (
     segment,
 )
 from tofcut.tracker.stats import robust_sigma
-
-BOOL = npt.NDArray[np.bool_]
-U8 = npt.NDArray[np.uint8]
 
 GOOD_IOU = 0.7
 """A target counts as segmented when its IoU is at least this in every noise seed."""
@@ -62,7 +59,7 @@ class Outcome:
     """One case on one subject: the mask of the first noise seed and scores over all seeds."""
 
     case: Case
-    mask: BOOL
+    mask: B
     ious: tuple[float, ...]
     others: tuple[float, ...]
     """Largest share of another object's pixels inside the mask, per seed."""
@@ -80,8 +77,8 @@ class Subject:
     """One object segmented in one scene, and what every case made of it."""
 
     name: str
-    intensity: npt.NDArray[np.float64]
-    truth: BOOL
+    intensity: F64
+    truth: B
     pixel: tuple[int, int]
     outcomes: tuple[Outcome, ...]
 
@@ -133,12 +130,12 @@ class FigureResult:
     """How the range looks across each subject's true outline (the §4.2 figures)."""
 
 
-def iou(a: BOOL, b: BOOL) -> float:
+def iou(a: B, b: B) -> float:
     union = int(np.count_nonzero(a | b))
     return float(np.count_nonzero(a & b)) / union if union else 1.0
 
 
-def boundary_stats(name: str, frame: Frame, truth: FrameTruth, mask: BOOL) -> BoundaryStats:
+def boundary_stats(name: str, frame: Frame, truth: FrameTruth, mask: B) -> BoundaryStats:
     """`BoundaryStats` of a true mask in a frame, with the default σs."""
     model = estimate_model(
         frame.intensity,
@@ -182,17 +179,17 @@ def boundary_stats(name: str, frame: Frame, truth: FrameTruth, mask: BOOL) -> Bo
     )
 
 
-def _robust_sigma(error: npt.NDArray[np.float64], where: BOOL) -> float:
+def _robust_sigma(error: F64, where: B) -> float:
     """The robust σ of the error over `where` (`stats.robust_sigma`), millimetres."""
     return robust_sigma(error[where]) * 1e3
 
 
-def _percentiles(values: npt.NDArray[np.float64]) -> tuple[float, float, float]:
+def _percentiles(values: F64) -> tuple[float, float, float]:
     p10, p50, p90 = (float(x) for x in np.percentile(values, [10, 50, 90]))
     return p10, p50, p90
 
 
-def deepest_pixel(mask: BOOL) -> tuple[int, int]:
+def deepest_pixel(mask: B) -> tuple[int, int]:
     """(u, v) of a pixel deepest inside a mask (last to go when eroding), nearest its middle."""
     inner = mask
     while True:
@@ -215,7 +212,7 @@ def frame_at(scene: str, seed: int) -> tuple[Frame, FrameTruth]:
     return decode(source, scene_exposure(source, 0.0))
 
 
-TargetOf = Callable[[FrameTruth, BOOL], Target]
+TargetOf = Callable[[FrameTruth, B], Target]
 
 
 def run_subject(
@@ -253,7 +250,7 @@ def run_subject(
     return Subject(name, first.intensity, truth_mask, pixel, tuple(outcomes))
 
 
-def _largest_other_share(mask: BOOL, labels: npt.NDArray[np.int32], own: int) -> float:
+def _largest_other_share(mask: B, labels: I32, own: int) -> float:
     counts = np.bincount(labels.ravel(), minlength=int(labels.max()) + 1)
     inside = np.bincount(labels[mask].ravel(), minlength=counts.size)
     shares = [inside[i] / counts[i] for i in range(1, counts.size) if i != own and counts[i]]
@@ -273,7 +270,7 @@ def figure1(seeds: Sequence[int], sweep: bool) -> FigureResult:
     info = source.target
     assert info is not None
 
-    def target_of(truth: FrameTruth, mask: BOOL) -> Target:
+    def target_of(truth: FrameTruth, mask: B) -> Target:
         x, y, z = (float(c) for c in info.centroid)
         return Target(pixel=info.seed_pixel, point=(x, y, z))
 
@@ -344,7 +341,7 @@ def _seeded_figure(
     base = SegmentParams()
     cases = _seeded_cases(base)
 
-    def target_of(truth: FrameTruth, mask: BOOL) -> Target:
+    def target_of(truth: FrameTruth, mask: B) -> Target:
         return Target(pixel=deepest_pixel(mask))
 
     subjects = tuple(
@@ -471,13 +468,13 @@ def _span(values: Sequence[float]) -> str:
 # --- pictures and the report ------------------------------------------------------------------
 
 
-def _grey(values: npt.NDArray[np.float64]) -> U8:
+def _grey(values: F64) -> U8:
     lo, hi = np.percentile(values, [1, 99])
     scaled = np.clip((values - lo) / max(float(hi - lo), 1e-12), 0.0, 1.0)
     return np.repeat((scaled * 255).astype(np.uint8)[..., None], 3, axis=-1)
 
 
-def _mask_picture(mask: BOOL, truth: BOOL) -> U8:
+def _mask_picture(mask: B, truth: B) -> U8:
     """White: target found; red: found but not target; blue: target missed; grey: neither."""
     img = np.full((*mask.shape, 3), 40, np.uint8)
     img[mask & truth] = (255, 255, 255)

@@ -220,11 +220,12 @@ def metadata_candidate(meta: dict[str, Any], source: str) -> BeltCandidate | Non
 
 
 def run_metadata(opened: Opened) -> tuple[dict[str, Any], str]:
-    """A source's metadata and what it is: a capture's ("capture"), else the scene's."""
+    """A source's metadata and what it is: a capture's ("capture", also one the emulated
+    camera replays), else the scene's."""
     device = opened.device
     if isinstance(device, CaptureReader):
         return device.capture.metadata, "capture"
-    return opened.metadata, "scene"
+    return opened.metadata, "scene" if opened.replay is None else "capture"
 
 
 def resolve_run_belt(

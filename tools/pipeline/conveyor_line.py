@@ -19,11 +19,11 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from types import TracebackType
 
 import numpy as np
 import rerun as rr
 
+from tofcut._closing import Closing
 from tofcut.driver.belt import BeltGeometry, BeltReading
 from tofcut.driver.conveyor.config import ConveyorConfig, load_conveyor_config
 from tofcut.driver.conveyor.exposure_clock import ExposureClock
@@ -99,7 +99,7 @@ def conveyor_config(args: argparse.Namespace, port: str | None) -> ConveyorConfi
 
 
 @dataclass(eq=False)
-class ConveyorLine:
+class ConveyorLine(Closing):
     """An opened conveyor: the client, the emulated controller behind it if any, rejects."""
 
     client: ConveyorClient
@@ -152,17 +152,6 @@ class ConveyorLine:
         self.client.close()
         if self.server is not None:
             self.server.close()
-
-    def __enter__(self) -> ConveyorLine:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
 
 def open_conveyor(

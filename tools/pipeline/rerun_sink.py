@@ -40,6 +40,7 @@ from pathlib import Path
 import numpy.typing as npt
 import rerun as rr
 
+from tofcut._closing import Closing
 from tofcut.driver.calibration import Calibration
 from tofcut.driver.errors import TofcutError
 from tofcut.tools.pipeline.rerun_log import APP_ID, FrameLogger, FrameRow, default_blueprint
@@ -101,7 +102,7 @@ class _Event:
     level: str
 
 
-class RerunSink:
+class RerunSink(Closing):
     """A recording of a tracked run, written by a worker thread; see the module docstring.
 
     `lossless` overrides the target's drop policy (None: files lose nothing, viewers drop).
@@ -398,12 +399,6 @@ class RerunSink:
                     self._error = exc
         if self._error is not None:
             raise RerunOutputError(f"rerun output failed: {self._error}") from self._error
-
-    def __enter__(self) -> RerunSink:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 class NullSink:

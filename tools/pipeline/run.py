@@ -44,13 +44,18 @@ class LiveFeed:
         camera: Camera,
         size: int = QUEUE_FRAMES,
         on_frame: Callable[[RawFrame], None] | None = None,
+        *,
+        wait_for_room: bool = False,
     ) -> None:
         """`on_frame` sees every frame received, on the reader thread, before it is queued
-        (the soak's accounting); it must be quick."""
+        (the soak's accounting); it must be quick. With `wait_for_room` the reader waits for
+        the tracker instead of dropping frames: for a camera with no clock to keep up with
+        (an emulated one on its virtual clock, `--fast`)."""
         if size < 1:
             raise ValueError(f"queue size must be at least 1, got {size}")
         self._camera = camera
         self._on_frame = on_frame
+        self._wait_for_room = wait_for_room
         self._queue: deque[tuple[RawFrame, float]] = deque()
         self._size = size
         self._cond = threading.Condition()
@@ -70,6 +75,10 @@ class LiveFeed:
                 if self._on_frame is not None:
                     self._on_frame(raw)
                 with self._cond:
+                    while self._wait_for_room and len(self._queue) >= self._size:
+                        if self._stop.is_set():
+                            return
+                        self._cond.wait()
                     if len(self._queue) >= self._size:
                         self._queue.popleft()
                         self.dropped += 1
@@ -92,6 +101,7 @@ class LiveFeed:
                     self._cond.wait()
                 if self._queue:
                     item = self._queue.popleft()
+                    self._cond.notify_all()  # a reader waiting for room
                 elif self._error is not None:
                     raise self._error
                 else:
@@ -99,7 +109,9 @@ class LiveFeed:
             yield item
 
     def stop(self) -> None:
-        self._stop.set()
+        with self._cond:
+            self._stop.set()
+            self._cond.notify_all()
         self._thread.join(timeout=5.0)
 
 

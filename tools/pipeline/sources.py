@@ -1,14 +1,19 @@
-"""Naming a camera on the command line: `usb`, `usb:SERIAL`, `emulator[:SCENE]`, or a capture.
+"""Naming a camera on the command line: `usb`, `usb:SERIAL`, `emulator[:SCENE]`,
+`emulator:FILE.tofcap`, or a capture.
 
 The emulator is chosen here and nowhere else: it is a pyusb backend handed to the same
-`Camera.open` that talks to real hardware.
+`Camera.open` that talks to real hardware. `emulator:FILE.tofcap` is the emulated camera
+replaying a capture (`tofcut.sim.replay`); `FILE.tofcap` alone is read by `CaptureReader`.
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
+import threading
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,7 +21,8 @@ from typing import Any
 
 from tofcut.driver.belt import KnownBelt
 from tofcut.driver.camera import Camera
-from tofcut.driver.capture import CaptureReader
+from tofcut.driver.capture import MAGIC, CaptureReader
+from tofcut.driver.config import CameraConfig
 from tofcut.driver.errors import ConfigError, TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import MAX_SENSOR_SIDE
@@ -25,6 +31,7 @@ from tofcut.sim.device import EmulatedCamera, EmulatedDevice
 from tofcut.sim.pattern import TestPattern
 from tofcut.sim.process import EmulatorProcess
 from tofcut.sim.renderer import SceneSource
+from tofcut.sim.replay import CaptureReplay, ReplayIndex, read_index
 from tofcut.sim.scene_file import SceneError, UnknownScene
 from tofcut.sim.source import TapSource
 from tofcut.sim.usb_backend import EmulatedBackend
@@ -93,14 +100,67 @@ class Opened:
     """What the emulated scene tells the tracker (belt, marked target); kept in captures."""
     bus: EmulatedBackend | None = None
     """The emulated camera's bus (to unplug and replug it: the soak's faults)."""
+    replay: ReplayIndex | None = None
+    """The capture the emulated camera replays (`emulator:FILE.tofcap`), else None."""
+    end_of_replay: EndOfReplay | None = None
+    """What stops the camera's stream when the replayed capture ends."""
 
     def close(self) -> None:
         """Close the device, then end the emulator's process if it has one."""
         try:
+            if self.end_of_replay is not None:
+                self.end_of_replay.close()
             self.device.close()
         finally:
             if isinstance(self.emulator, EmulatorProcess):
                 self.emulator.close()
+
+
+class EndOfReplay:
+    """Ends a replaying camera's stream with its capture: a thread waits for the emulated
+    camera's `replay_done` (its last frame sent, and more asked for) and stops the camera,
+    so that `frames()` ends there as `CaptureReader.frames()` does. It holds the camera
+    weakly: a camera dropped unclosed (`tofcut.open`) is still collected, its emulator's
+    process with it, and the thread ends."""
+
+    def __init__(self, camera: Camera, done: threading.Event) -> None:
+        self._camera = weakref.ref(camera)
+        self._done = done
+        self._closing = False
+        weakref.finalize(camera, done.set)
+        self._thread = threading.Thread(target=self._run, name="tofcut-replay-end", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            self._done.wait()
+            camera = self._camera()
+            if self._closing or camera is None:
+                return
+            self._done.clear()
+            with contextlib.suppress(TofcutError):  # gone meanwhile: the reading ends anyway
+                camera.stop()
+            del camera
+
+    def close(self) -> None:
+        self._closing = True
+        self._done.set()
+        self._thread.join()
+
+
+def names_capture(arg: str | None) -> bool:
+    """Whether `emulator:ARG` names a capture to replay: a `.tofcap` name, or a file that
+    starts as one."""
+    if arg is None:
+        return False
+    path = Path(arg)
+    if path.suffix == ".tofcap":
+        return True
+    try:
+        with path.open("rb") as f:
+            return f.read(len(MAGIC)) == MAGIC
+    except OSError:
+        return False
 
 
 def scene_metadata(source: TapSource) -> dict[str, Any]:
@@ -147,6 +207,22 @@ def scene_target(meta: dict[str, Any]) -> tuple[int, int] | None:
     return (seed[0], seed[1])
 
 
+def configure(opened: Opened, config: CameraConfig | None) -> None:
+    """Set an opened camera's configuration (None: leave it as it is). For an emulated camera
+    replaying a capture, a setting the capture cannot be replayed at is a `SourceError`
+    that says why, before anything is written (the camera itself would stall the write)."""
+    if config is None:
+        return
+    camera = opened.device
+    assert isinstance(camera, Camera)
+    if opened.replay is not None:
+        registers = config.registers()
+        for register, value in registers.items():
+            if why := opened.replay.refusal(register, value, registers):
+                raise SourceError(why)
+    camera.configure(config)
+
+
 def open_source(
     spec: SourceSpec,
     *,
@@ -157,6 +233,7 @@ def open_source(
     on_event: Callable[[DeviceEvent], None] | None = None,
     virtual_host_clock: bool = False,
     own_process: bool | None = None,
+    loop: bool = False,
 ) -> Opened:
     """Open a USB or emulated camera, or a capture that replays like one.
 
@@ -168,8 +245,8 @@ def open_source(
     are stamped on the host's clock. `own_process` runs an emulated camera in a process of
     its own (`EmulatorProcess`), so that rendering its scene does not take the tracker's
     core; by default it does when it runs in real time (where the host must keep up), and
-    not when it is not (no clock to keep up with, and no process to start). Close the
-    result with `Opened.close()`.
+    not when it is not (no clock to keep up with, and no process to start). `loop` replays
+    an emulated camera's capture over and over. Close the result with `Opened.close()`.
     """
     if spec.kind == "capture":
         assert spec.arg is not None
@@ -180,17 +257,31 @@ def open_source(
             on_event=on_event,
         )  # fmt: skip
         return Opened(camera)
-    source = scene_source(spec.arg, seed)
-    registers = source.settings.registers if isinstance(source, SceneSource) else None
     if own_process is None:
         own_process = realtime and os.name == "posix"
+    replay = None
     emulator: EmulatedDevice
-    if own_process:
-        emulator = EmulatorProcess(
-            scene_recipe(spec.arg, seed), source=source, realtime=realtime, registers=registers
-        )
+    if names_capture(spec.arg):
+        assert spec.arg is not None
+        replay = read_index(spec.arg)
+        recipe = functools.partial(CaptureReplay, replay, loop=loop)
+        serial, firmware = replay.serial, replay.firmware
+        if own_process:
+            emulator = EmulatorProcess(recipe, realtime=realtime, serial=serial, firmware=firmware)
+        else:
+            emulator = EmulatedCamera(recipe(), realtime=realtime, serial=serial, firmware=firmware)
+        metadata = replay.installation
     else:
-        emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
+        source = scene_source(spec.arg, seed)
+        registers = source.settings.registers if isinstance(source, SceneSource) else None
+        if own_process:
+            emulator = EmulatorProcess(
+                scene_recipe(spec.arg, seed), source=source, realtime=realtime,
+                registers=registers,
+            )  # fmt: skip
+        else:
+            emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
+        metadata = scene_metadata(source)
     backend = EmulatedBackend([emulator])
     clock_ns = time.time_ns
     if virtual_host_clock and not realtime:
@@ -204,4 +295,5 @@ def open_source(
         if isinstance(emulator, EmulatorProcess):
             emulator.close()
         raise
-    return Opened(camera, emulator, scene_metadata(source), backend)
+    end = None if replay is None else EndOfReplay(camera, emulator.replay_done)
+    return Opened(camera, emulator, metadata, backend, replay, end)

@@ -28,15 +28,11 @@ import functools
 import maxflow
 import numba
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I64, B
 from tofcut.tracker.components_kernels import number_sets, root
 from tofcut.tracker.neighbours import DIRECTIONS, DU, DV, OFFSETS
 from tofcut.tracker.paper.energy import edge_weight
-
-BOOL = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
 
 MARGIN = 1e-9
 """Relative margin on the slack, so that rounding in the sums never merges a pair a minimum
@@ -167,21 +163,21 @@ def _components(weights: F64, limit: float) -> tuple[int, I64]:
     return int(node.max()) + 1, node
 
 
-def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[BOOL, int]:
+def solve_merged(cost1: F64, cost0: F64, weights: F64) -> tuple[B, int]:
     """A minimum of the energy by graph cut on the merged nodes: (labels (H, W), nodes).
     Edges that leave the grid are ignored, whatever `weights` holds for them."""
     count, node = merged_nodes(cost1, cost0, weights)
     return cut_merged(cost1, cost0, weights, count, node), count
 
 
-def cut_merged(cost1: F64, cost0: F64, weights: F64, count: int, node: I64) -> BOOL:
+def cut_merged(cost1: F64, cost0: F64, weights: F64, count: int, node: I64) -> B:
     """The (H, W) labels of a minimum by graph cut on the nodes of `merged_nodes`."""
     cap1, cap0, heads, tails, caps = _merged_graph(cost1, cost0, weights, count, node)
-    labels: BOOL = min_cut(cap1, cap0, heads, tails, caps)[node]
+    labels: B = min_cut(cap1, cap0, heads, tails, caps)[node]
     return labels
 
 
-def min_cut(source: F64, sink: F64, heads: I64, tails: I64, caps: F64) -> BOOL:
+def min_cut(source: F64, sink: F64, heads: I64, tails: I64, caps: F64) -> B:
     """Which nodes end on the sink side of a minimum s-t cut (PyMaxflow), given each node's
     capacities from the source and to the sink and undirected edges heads–tails."""
     graph = maxflow.Graph[float](source.size, heads.size)

@@ -22,13 +22,10 @@ import math
 
 import numba
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import DIAGONAL, DU, DV, OFFSETS, pair_slices
-
-BOOL = npt.NDArray[np.bool_]
 
 GREY_PERCENTILE = 99.0
 """The intensity percentile mapped to grey level 255."""
@@ -48,7 +45,7 @@ def edge_weight(weights: F64, v: int, u: int, k: int) -> float:
     return float(weights[k - len(OFFSETS), qv, qu])
 
 
-def energy_of(labels: BOOL, cost1: F64, cost0: F64, weights: F64) -> float:
+def energy_of(labels: B, cost1: F64, cost0: F64, weights: F64) -> float:
     """E(w) of a labelling (True = target): unary costs plus the weights of cut edges."""
     total = float(np.where(labels, cost1, cost0).sum())
     for k in range(len(OFFSETS)):
@@ -60,13 +57,13 @@ def energy_of(labels: BOOL, cost1: F64, cost0: F64, weights: F64) -> float:
 # --- data terms (§4.1) ------------------------------------------------------------------------
 
 
-def grey_levels(intensity: F64, valid: BOOL, reference: float | None = None) -> F64:
+def grey_levels(intensity: F64, valid: B, reference: float | None = None) -> F64:
     """Intensity as 8-bit grey levels (not clipped): 255·I / I_ref."""
     ref = intensity_reference(intensity, valid) if reference is None else reference
     return intensity * (255.0 / ref)
 
 
-def intensity_reference(intensity: F64, valid: BOOL) -> float:
+def intensity_reference(intensity: F64, valid: B) -> float:
     """I_ref: the 99th percentile of the valid intensity (1.0 if there is none above 0)."""
     values = intensity[valid]
     ref = percentile(values, GREY_PERCENTILE) if values.size else 0.0
@@ -74,7 +71,7 @@ def intensity_reference(intensity: F64, valid: BOOL) -> float:
 
 
 @numba.njit(cache=True)
-def intensity_costs(grey: F64, valid: BOOL, mu_t: float, mu_b: float) -> tuple[F64, F64]:
+def intensity_costs(grey: F64, valid: B, mu_t: float, mu_b: float) -> tuple[F64, F64]:
     """Eq. (5): (cost1, cost0) = ((g − µt)², (g − µb)²), zero at invalid pixels."""
     h, w = valid.shape
     cost1, cost0 = np.zeros((h, w)), np.zeros((h, w))
@@ -87,7 +84,7 @@ def intensity_costs(grey: F64, valid: BOOL, mu_t: float, mu_b: float) -> tuple[F
 
 
 @numba.njit(cache=True)
-def range_penalty(xyz: F64, valid: BOOL, mu_d: F64, beta: float) -> F64:
+def range_penalty(xyz: F64, valid: B, mu_d: F64, beta: float) -> F64:
     """Eq. (6)'s extra target cost β‖D_p − µd‖² (D_p the pixel's 3D point), zero at invalid."""
     h, w = valid.shape
     out = np.zeros((h, w))
@@ -114,7 +111,7 @@ def _pair_distance(xyz: F64, v: int, u: int, qv: int, qu: int) -> float:
     return float(dx * dx + dy * dy + dz * dz)
 
 
-def image_penalty(valid: BOOL, centre: tuple[float, float], beta: float) -> F64:
+def image_penalty(valid: B, centre: tuple[float, float], beta: float) -> F64:
     """Malcolm et al.'s target cost β‖x_p − µx‖² in the image plane (pixels), zero at invalid."""
     h, w = valid.shape
     uc, vc = centre
@@ -154,7 +151,7 @@ def seed_costs(shape: tuple[int, int], seed: tuple[int, int]) -> tuple[F64, F64]
 
 def range_weights(
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     sigma_s: float,
     grey: F64 | None = None,
     sigma_i: float | None = None,
@@ -186,7 +183,7 @@ def range_weights(
 
 @numba.njit(cache=True)
 def _range_exponents(
-    xyz: F64, valid: BOOL, scale_s: float, grey: F64, scale_i: float, squared: bool
+    xyz: F64, valid: B, scale_s: float, grey: F64, scale_i: float, squared: bool
 ) -> F64:
     """(4, H, W) exponents of `range_weights`: D(p, q)/scale_s − (g_p − g_q)²/scale_i (the
     intensity term left out when scale_i is 0), −inf where an edge has an invalid pixel or
@@ -213,7 +210,7 @@ def _range_exponents(
 # --- estimating the model from the frame ------------------------------------------------------
 
 
-def window_median(values: F64, valid: BOOL, centre: tuple[int, int], radius: int) -> float | None:
+def window_median(values: F64, valid: B, centre: tuple[int, int], radius: int) -> float | None:
     """Median of the valid values in the (2r+1)² window around (u, v); None if none is valid."""
     u, v = centre
     window = (slice(max(v - radius, 0), v + radius + 1), slice(max(u - radius, 0), u + radius + 1))
@@ -221,7 +218,7 @@ def window_median(values: F64, valid: BOOL, centre: tuple[int, int], radius: int
     return float(np.median(picked, axis=0)) if picked.size else None
 
 
-def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: int) -> F64 | None:
+def window_median_point(xyz: F64, valid: B, centre: tuple[int, int], radius: int) -> F64 | None:
     """Per-axis median of the valid 3D points in the window around (u, v); None if none."""
     u, v = centre
     window = (slice(max(v - radius, 0), v + radius + 1), slice(max(u - radius, 0), u + radius + 1))
@@ -229,14 +226,14 @@ def window_median_point(xyz: F64, valid: BOOL, centre: tuple[int, int], radius: 
     return np.median(picked, axis=0) if picked.size else None
 
 
-def background_intensity(grey: F64, valid: BOOL, xyz: F64, mu_d: F64, margin_m: float) -> float:
+def background_intensity(grey: F64, valid: B, xyz: F64, mu_d: F64, margin_m: float) -> float:
     """µb: median grey level of the valid pixels farther than `margin_m` from µd, or from
     every row of a (K, 3) array of µd (all valid pixels if none is that far)."""
     return float(_background_intensity(grey, valid, xyz, np.atleast_2d(mu_d), margin_m**2))
 
 
 @numba.njit(cache=True)
-def _background_intensity(grey: F64, valid: BOOL, xyz: F64, points: F64, limit: float) -> float:
+def _background_intensity(grey: F64, valid: B, xyz: F64, points: F64, limit: float) -> float:
     h, w = valid.shape
     far = np.zeros((h, w), dtype=np.bool_)
     count = 0
@@ -253,14 +250,14 @@ def _background_intensity(grey: F64, valid: BOOL, xyz: F64, points: F64, limit: 
     return median(grey.ravel()[pick.ravel()])
 
 
-def nearest_pixel(xyz: F64, valid: BOOL, point: F64) -> tuple[int, int]:
+def nearest_pixel(xyz: F64, valid: B, point: F64) -> tuple[int, int]:
     """(u, v) of the valid pixel whose ray passes closest to a 3D point (its image position)."""
     v, u = _nearest_pixel(xyz, valid, point, float(np.linalg.norm(point)))
     return int(u), int(v)
 
 
 @numba.njit(cache=True)
-def _nearest_pixel(xyz: F64, valid: BOOL, point: F64, point_norm: float) -> tuple[int, int]:
+def _nearest_pixel(xyz: F64, valid: B, point: F64, point_norm: float) -> tuple[int, int]:
     """(v, u) of the largest cosine between the pixel's point and `point` (first if equal)."""
     h, w = valid.shape
     best, at_v, at_u = -np.inf, 0, 0
@@ -278,7 +275,7 @@ def _nearest_pixel(xyz: F64, valid: BOOL, point: F64, point_norm: float) -> tupl
 
 
 @numba.njit(cache=True)
-def neighbour_distance(xyz: F64, valid: BOOL) -> float:
+def neighbour_distance(xyz: F64, valid: B) -> float:
     """Median 3D distance between valid horizontal and vertical neighbours: the frame's scale
     of "the same surface" (pixel footprint plus range noise)."""
     h, w = valid.shape
@@ -299,8 +296,10 @@ def neighbour_distance(xyz: F64, valid: BOOL) -> float:
 
 
 @numba.njit(cache=True)
-def neighbour_step(grey: F64, valid: BOOL) -> float:
+def neighbour_step(grey: F64, valid: B) -> float:
     """Median |g_p − g_q| between valid horizontal and vertical neighbours, grey levels."""
+    # walks the pairs as `neighbour_distance` does, on purpose: a compiled loop each, each
+    # with its own step in the innermost loop, rather than a call per pair into one walk
     h, w = valid.shape
     steps = np.empty(2 * h * w)
     n = 0
@@ -315,6 +314,10 @@ def neighbour_step(grey: F64, valid: BOOL) -> float:
 
 
 # --- exact order statistics without a sort: medians and percentiles ---------------------------
+# `median` repeats `tracker.stats_kernels.median` on purpose: both give np.median's value (they
+# differ only in which sign a median of +0.0 and -0.0 takes), but this one bins a whole
+# frame's values (2.4x as fast as the tracker's quickselect on 25,000 values, 3.4x on 50,000),
+# and the tracker's is the faster on the few hundred values it takes at a time (1.9x on 500).
 
 MEDIAN_BINS = 4096
 """Bins of `_order_pair`'s histograms."""

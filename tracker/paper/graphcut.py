@@ -47,14 +47,11 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I64, B
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import DIRECTIONS, DU, DV, OFFSETS
 from tofcut.tracker.paper.contraction import cut_merged, merged_nodes, min_cut
 from tofcut.tracker.paper.energy import edge_weight
-
-BOOL = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
 
 FULL_GRAPH_SHARE = 0.5
 """`solve_reduced` cuts the full grid when more than this share of the pixels stays free."""
@@ -96,7 +93,7 @@ class Problem:
 class Solution:
     """A minimising labelling and how much of the problem went into the graph."""
 
-    labels: BOOL
+    labels: B
     """(H, W), True = target."""
     graph_nodes: int
     """Nodes of the graph(s) cut: pixels, or groups of merged pixels (summed over the windows
@@ -140,9 +137,7 @@ def solve_reduced(problem: Problem) -> Solution:
 
 
 @numba.njit(cache=True)
-def _first_pass(
-    cost1: F64, cost0: F64, weights: F64, bound: float, labels: BOOL, free: BOOL
-) -> None:
+def _first_pass(cost1: F64, cost0: F64, weights: F64, bound: float, labels: B, free: B) -> None:
     """labels = δ < 0 and free = |δ| ≤ W_p for every pixel, or |δ| ≤ `bound` if that is
     ≥ 0 (a bound of every W_p: the weights are not read). W_p is summed for the interior in
     one loop that the compiler vectorises, at the border through `edge_weight`."""
@@ -181,7 +176,7 @@ def _first_pass(
 
 
 @numba.njit(cache=True)
-def _flat_true(flags: BOOL) -> I64:
+def _flat_true(flags: B) -> I64:
     """np.flatnonzero of a flat bool array, quicker when few are True: skips 8 at a time."""
     n = flags.size
     words = n // 8
@@ -209,7 +204,7 @@ def _flat_true(flags: BOOL) -> I64:
 @numba.njit(cache=True)
 def _reduce(
     cost1: F64, cost0: F64, weights: F64, bound: float, max_free: int
-) -> tuple[BOOL, I64, F64, F64, I64, I64, F64]:
+) -> tuple[B, I64, F64, F64, I64, I64, F64]:
     """(labels, free pixels (flat), their cost1 and cost0 with the fixed neighbours' edges
     folded in, and the edges (heads, tails, weights, as indices into the free pixels)
     between them); past `max_free` free pixels after the first pass, stops and returns

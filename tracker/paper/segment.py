@@ -17,15 +17,12 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, B
 from tofcut.driver.frames import Frame
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.paper import energy as en
 from tofcut.tracker.paper.graphcut import Problem, solve_cropped, solve_reduced, solve_reference
-
-BOOL = npt.NDArray[np.bool_]
 
 
 class Energy(enum.Enum):
@@ -145,7 +142,7 @@ class Model:
 class Segmentation:
     """The minimum found: the target's mask, its energy, and how long it took."""
 
-    mask: BOOL
+    mask: B
     """(H, W), True on the target."""
     energy: float
     """E of the mask: the minimum of the energy."""
@@ -176,7 +173,7 @@ def segment(
 def segment_arrays(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     target: Target,
     energy: Energy,
     params: SegmentParams | None = None,
@@ -208,7 +205,7 @@ def segment_arrays(
     )
 
 
-def _check_arrays(intensity: F64, xyz: F64, valid: BOOL) -> None:
+def _check_arrays(intensity: F64, xyz: F64, valid: B) -> None:
     if intensity.ndim != 2 or intensity.size == 0:
         raise SegmentError(f"intensity must be a non-empty (H, W) array, not {intensity.shape}")
     if valid.shape != intensity.shape or xyz.shape != (*intensity.shape, 3):
@@ -223,7 +220,7 @@ def _check_arrays(intensity: F64, xyz: F64, valid: BOOL) -> None:
 def estimate_model(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     target: Target,
     energy: Energy,
     params: SegmentParams,
@@ -283,7 +280,7 @@ def estimate_model(
 def build_problem(
     intensity: F64,
     xyz: F64,
-    valid: BOOL,
+    valid: B,
     energy: Energy,
     params: SegmentParams,
     model: Model,

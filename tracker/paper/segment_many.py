@@ -24,9 +24,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-import numpy.typing as npt
 
-from tofcut._types import F64
+from tofcut._types import F64, I64, B
 from tofcut.driver.frames import Frame
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.multicut import PottsProblem, solve_potts
@@ -40,9 +39,6 @@ from tofcut.tracker.paper.segment import (
     build_problem,
     estimate_model,
 )
-
-BOOL = npt.NDArray[np.bool_]
-I64 = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,9 +54,9 @@ class ManySegmentation:
     models: tuple[Model, ...]
     """Each target's estimated model (µb is the shared one)."""
 
-    def mask(self, k: int) -> BOOL:
+    def mask(self, k: int) -> B:
         """(H, W) mask of targets[k]."""
-        mask: BOOL = self.labels == k + 1
+        mask: B = self.labels == k + 1
         return mask
 
 
