@@ -262,7 +262,8 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
     kept = (seed0 / "capture.tofcap").stat().st_mtime_ns
     (work / "conveyor" / "seed-1" / "capture.truth.npz").unlink()
     code = main(["evaluate", "--scene", "conveyor", "--seeds", "0-1", "--frames", "20",
-                 "--work", str(work), "--trackers", "replay", "--json", str(js)])  # fmt: skip
+                 "--work", str(work), "--trackers", "replay", "--json", str(js),
+                 "--workers", "1"])  # fmt: skip
     assert code == 0
     assert (seed0 / "capture.tofcap").stat().st_mtime_ns == kept
     assert (work / "conveyor" / "seed-1" / "capture.truth.npz").is_file()
@@ -272,7 +273,8 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
 
     # a line that cannot be made is reported with its seed and error, and fails the run
     code = main(["evaluate", "--scene", "no-such-scene-{seed}", "--seeds", "3", "--frames",
-                 "5", "--work", str(work), "--json", str(tmp_path / "bad.json")])  # fmt: skip
+                 "5", "--work", str(work), "--json", str(tmp_path / "bad.json"),
+                 "--workers", "1"])  # fmt: skip
     printed = capsys.readouterr()
     assert code == 1
     assert "seed 3 (emulator:no-such-scene-3): no scene 'no-such-scene-3'" in printed.out

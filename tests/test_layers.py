@@ -28,6 +28,10 @@ FORBIDDEN = [
     ("tofcut.tools.bench", "tofcut.tools.commands"),
     ("tofcut.tools.evaluation", "tofcut.tools.commands"),
     ("tofcut.tools.experiments", "tofcut.tools.commands"),
+    # batches run the steps that commands and evaluation give them, knowing none of them
+    ("tofcut.tools.pipeline", "tofcut.tools.batch"),
+    ("tofcut.tools.batch", "tofcut.tools.commands"),
+    ("tofcut.tools.batch", "tofcut.tools.evaluation"),
     # testing (the pytest plugin) is on top, beside the commands: nothing imports it, and it
     # opens cameras by the pipeline's source names, not through a command or the tracker
     ("tofcut.driver", "tofcut.testing"),

@@ -44,6 +44,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "tofcut.tools.commands.evaluate",
         "score tracks and masks against emulator ground truth (or a family)",
     ),
+    "sweep": (
+        "tofcut.tools.commands.sweep",
+        "score the tracker on a family of lines under every setting of a grid",
+    ),
     "scenes": (
         "tofcut.tools.commands.scenes",
         "list the emulator's scenes and draw them, or draw a family's line from a seed",
@@ -65,7 +69,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
 """Command name → (module, one-line help). Each module has `register(subparsers)`, which
 adds its parser (with the same help) and sets `func`."""
 
-LIBRARY_LOGGERS = ("pymodbus", "serial", "rerun", "numba", "PIL", "matplotlib", "py.warnings")
+LIBRARY_LOGGERS = (
+    "pymodbus", "serial", "rerun", "numba", "PIL", "matplotlib", "ray", "py.warnings",
+)  # fmt: skip
 """Third-party loggers (and Python's warnings, routed to logging): silent by default (tofcut
 says what matters in its own words), warnings with `-v`, everything with `-vv`."""
 

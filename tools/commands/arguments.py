@@ -100,6 +100,15 @@ def existing_file(text: str, what: str = "file") -> Path:
     return path
 
 
+def existing_folder(text: str) -> Path:
+    """A folder to read from (`evaluate --runs`)."""
+    path = Path(text)
+    if not path.is_dir():
+        there = "is a file, not a folder" if path.exists() else "does not exist"
+        raise argparse.ArgumentTypeError(f"{text} {there}")
+    return path
+
+
 def capture_file(text: str) -> Path:
     """A capture to read (`convert`, `evaluate`)."""
     return existing_file(text, "capture")

@@ -29,8 +29,14 @@ import argparse
 import json
 from typing import Any
 
-from tofcut.tools.commands.arguments import UsageError, capture_file, existing_file, output_file
-from tofcut.tools.evaluation import evaluate_files, family
+from tofcut.tools.commands.arguments import (
+    UsageError,
+    capture_file,
+    existing_file,
+    existing_folder,
+    output_file,
+)
+from tofcut.tools.evaluation import evaluate_files, family, runs
 from tofcut.tools.evaluation.run_scores import per_object
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, evaluate, read_run
 from tofcut.tools.pipeline.mot import read_mot
@@ -43,6 +49,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "evaluate", help="score tracks and masks against emulator ground truth (or a family)"
     )
     p.add_argument("capture", type=capture_file, nargs="?", metavar="CAPTURE.tofcap")
+    p.add_argument(
+        "more", type=capture_file, nargs="*", metavar="CAPTURE",
+        help="more captures: with --runs DIR, each one's run there is scored, as a batch",
+    )  # fmt: skip
+    p.add_argument(
+        "--runs", type=existing_folder, metavar="DIR",
+        help="the captures' runs, NAME.tracks.jsonl and NAME.masks.npz (as tofcut track "
+        "CAPTURE ... --out DIR writes them): all scored, one task a capture",
+    )  # fmt: skip
     p.add_argument(
         "--tracks", type=existing_file, metavar="FILE.jsonl",
         help="the run's --tracks-out (with --truth also its --mot-out)",
@@ -63,15 +78,24 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )
     p.add_argument("--per-object", action="store_true", help="also a line per object (masks)")
     p.add_argument("--json", type=output_file, help="also write every number here")
-    family.add_family_options(p)
+    family.add_family_options(
+        p, "a family of lines (instead of CAPTURE --tracks --masks)", tasks="lines (or runs)"
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     if family.wants_family(args):
-        if args.capture or args.tracks or args.masks or args.truth:
+        if args.capture or args.more or args.runs or args.tracks or args.masks or args.truth:
             raise SourceError("give either CAPTURE --tracks --masks, or --family/--scene, not both")
         return family.run(args)
+    if args.runs is not None or args.more:
+        if args.capture is None or args.runs is None or args.tracks or args.masks or args.truth:
+            raise UsageError("a batch of runs is CAPTURE [CAPTURE ...] --runs DIR (no --tracks, "
+                             "--masks or --truth: each capture's run is found in DIR)")  # fmt: skip
+        if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0 or args.min_pixels < 1:
+            raise SourceError("--min-iou must be in (0, 1], --gate > 0 and --min-pixels >= 1")
+        return runs.run(args, [args.capture, *args.more])
     if args.truth is not None:
         return _against_file(args)
     if args.capture is None or args.tracks is None or args.masks is None:

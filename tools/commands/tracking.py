@@ -58,6 +58,7 @@ from tofcut.tools.pipeline.run import (
     run,
 )
 from tofcut.tools.pipeline.run_belt import RunBelt
+from tofcut.tools.pipeline.settings import applied, one_setting
 from tofcut.tools.pipeline.sources import (
     Opened,
     SourceError,
@@ -115,6 +116,11 @@ def add_tracking_options(p: argparse.ArgumentParser, *, seconds_help: str | None
         "beside a target is part of it (default: rigid objects, as on a conveyor)",
     )  # fmt: skip
     g.add_argument(
+        "--set", type=one_setting, action="append", default=[], metavar="tracker.PARAM=VALUE",
+        help="a tracker parameter (tofcut.tracker.params.TrackerParams; repeatable), e.g. "
+        "tracker.beta=3 or tracker.background.rate=0.05",
+    )  # fmt: skip
+    g.add_argument(
         "--scene-target", action="store_true",
         help="emulator or emulator capture: follow the scene's marked target from its seed",
     )  # fmt: skip
@@ -145,6 +151,9 @@ class StatusLine:
 def track(args: argparse.Namespace, *, live: bool) -> int:
     """Run the tracker on the source the arguments name."""
     check_viewer(args)  # before anything slow: a viewer asked for must be there
+    params = applied(
+        TrackerParams(rigid=not args.deformable), {s.name: s.values[0] for s in args.set}
+    )
     events = EventRelay()
     what = {"emulator": "starting the emulated camera", "capture": "opening the capture"}
     startup().step(what.get(args.source.kind, "opening the camera"))
@@ -157,12 +166,14 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
     finally:
         startup().done()
     try:
-        return _track(args, live, opened, events)
+        return _track(args, live, opened, events, params)
     finally:
         opened.close()
 
 
-def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay) -> int:
+def _track(
+    args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay, params: TrackerParams
+) -> int:
     device = opened.device
     meta, _ = run_metadata(opened)
     if not live and (args.conveyor or args.conveyor_emulator):
@@ -174,9 +185,7 @@ def _track(args: argparse.Namespace, live: bool, opened: Opened, events: EventRe
         slow="compiling the tracker (a first run only: it is cached after)",
     )
     try:
-        tracker = Tracker(
-            TrackerParams(rigid=not args.deformable), belt=belt.geometry if belt else None
-        )
+        tracker = Tracker(params, belt=belt.geometry if belt else None)
     finally:
         startup().done()
     targets = list(args.target_pixel)

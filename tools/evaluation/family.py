@@ -14,25 +14,24 @@ noise seeds. For each line:
    --tracks-out ... --masks-out ...`, and `python -m tofcut.tools.evaluation.baseline CAPTURE ...`;
 3. score each run both ways (`tofcut.tools.evaluation.scoring`).
 
-Lines run in parallel processes (`--workers`). A line that fails is reported with its seed
-and the error, and makes the exit code 1; it is never dropped silently.
+Each line is a task (`tofcut.tools.batch`): `--workers` at once on a Ray started here, or
+on a Ray cluster (`--ray-address`). A line that fails is run once more; if it fails again it
+is reported with its seed and the error, and makes the exit code 1; it is never dropped.
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
-from multiprocessing import get_context
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +41,10 @@ from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.sim.device import EmulatedCamera
 from tofcut.sim.renderer import SceneSource
-from tofcut.sim.truth import load_truth, truth_path
+from tofcut.sim.truth import FrameTruth, load_truth, truth_path
+from tofcut.tools.batch.pool import BatchError, Pool, add_batch_options
+from tofcut.tools.batch.steps import StepFailed, cli, describe, run_step
+from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
 from tofcut.tools.pipeline.sources import SourceError, scene_metadata, scene_source
 
@@ -50,13 +52,9 @@ DEFAULT_SECONDS = 20.0
 TRACKERS = ("tofcut", "baseline")
 
 
-def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "tofcut.tools.cli", *args]
-
-
 def _tofcut(capture: Path, tracks: Path, masks: Path) -> list[str]:
     """`tofcut track` as a user runs it (its rerun recording thrown away)."""
-    return _cli("track", str(capture), "--tracks-out", str(tracks), "--masks-out", str(masks),
+    return cli("track", str(capture), "--tracks-out", str(tracks), "--masks-out", str(masks),
                 "--save", os.devnull)  # fmt: skip
 
 
@@ -70,10 +68,6 @@ COMMANDS: dict[str, Callable[[Path, Path, Path], list[str]]] = {
     "baseline": _baseline,
 }
 """Each tracker's command line: capture, tracks out, masks out → argv."""
-
-
-class LineFailed(Exception):
-    """A step of a line went wrong: the message says which step and why, in one line."""
 
 
 def parse_seeds(text: str) -> tuple[int, ...]:
@@ -98,9 +92,13 @@ def parse_trackers(text: str) -> tuple[str, ...]:
     return names
 
 
-def add_family_options(p: argparse.ArgumentParser) -> None:
-    """The options of a family evaluation (`tofcut evaluate --family ... --seeds ...`)."""
-    g = p.add_argument_group("a family of lines (instead of CAPTURE --tracks --masks)")
+def add_family_options(
+    p: argparse.ArgumentParser, title: str, *, trackers: bool = True, tasks: str = "lines"
+) -> None:
+    """The options of a family evaluation (`tofcut evaluate --family ... --seeds ...`) in a
+    group of that `title`; without `trackers`, no `--trackers` (a sweep runs tofcut's);
+    `tasks` says what `--workers` runs at once."""
+    g = p.add_argument_group(title)
     which = g.add_mutually_exclusive_group()
     which.add_argument("--family", metavar="NAME", help="the lines emulator:family:NAME:SEED")
     which.add_argument(
@@ -121,12 +119,13 @@ def add_family_options(p: argparse.ArgumentParser) -> None:
         help="keep captures and runs here; complete captures recorded the same way are reused "
         "(default: a temporary folder, removed at the end)",
     )  # fmt: skip
-    g.add_argument(
-        "--trackers", type=parse_trackers, default=TRACKERS, metavar="NAMES",
-        help=f"comma-separated, of {', '.join(COMMANDS)} (default: all)",
-    )  # fmt: skip
-    g.add_argument("--workers", type=int, default=1, help="lines at once, in processes (1)")
-    g.add_argument("--out", type=Path, metavar="DIR", help="write evaluation.md and .json here")
+    if trackers:
+        g.add_argument(
+            "--trackers", type=parse_trackers, default=TRACKERS, metavar="NAMES",
+            help=f"comma-separated, of {', '.join(COMMANDS)} (default: all)",
+        )  # fmt: skip
+    add_batch_options(g, tasks)
+    g.add_argument("--out", type=Path, metavar="DIR", help="write the tables here, .md and .json")
 
 
 def wants_family(args: argparse.Namespace) -> bool:
@@ -190,6 +189,8 @@ class LineResult:
     runs: tuple[TrackerRun, ...] = ()
     error: str | None = None
     """What stopped the line before any tracker ran (recording it, say)."""
+    retried: str | None = None
+    """What failed the first time the line ran, when it was run once more."""
 
     @property
     def errors(self) -> list[str]:
@@ -203,25 +204,8 @@ class LineResult:
     def to_json(self) -> dict[str, Any]:
         return {"seed": self.seed, "source": self.source, "scene": self.scene,
                 "frames": self.frames, "error": self.error,
-                "runs": {r.tracker: r.to_json() for r in self.runs}}  # fmt: skip
-
-
-def _describe(exc: BaseException) -> str:
-    """An error as one line: our own errors by their message, others with their type."""
-    if isinstance(exc, LineFailed | TofcutError):
-        return str(exc)
-    return f"{type(exc).__name__}: {exc}".splitlines()[0]
-
-
-def _run(argv: list[str], log: Path, what: str) -> None:
-    """Run a step in its own process, its output to `log`; a failure says why in one line."""
-    with log.open("w", encoding="utf-8") as out:
-        code = subprocess.run(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                              check=False).returncode  # fmt: skip
-    if code != 0:
-        lines = [x.strip() for x in log.read_text(encoding="utf-8", errors="replace").splitlines()]
-        last = next((x for x in reversed(lines) if x), "no output")
-        raise LineFailed(f"{what} exited with {code}: {last} (log: {log})")
+                "runs": {r.tracker: r.to_json() for r in self.runs},
+                **({"retried": self.retried} if self.retried else {})}  # fmt: skip
 
 
 def _line_facts(plan: Plan, seed: int) -> tuple[int, str]:
@@ -263,14 +247,47 @@ def record_line(plan: Plan, seed: int, frames: int, folder: Path) -> Path:
     for p in (marker, capture, truth_path(capture)):
         p.unlink(missing_ok=True)
     part = folder / "capture.part.tofcap"
-    _run(_cli("record", source, "-o", str(part), "--frames", str(frames), "--fast",
+    run_step(cli("record", source, "-o", str(part), "--frames", str(frames), "--fast",
               "--seed", str(seed), "--bare"), folder / "record.log", "record")  # fmt: skip
     if not truth_path(part).is_file():
-        raise LineFailed(f"record wrote no ground truth for {source}")
+        raise StepFailed(f"record wrote no ground truth for {source}")
     truth_path(part).replace(truth_path(capture))
     part.replace(capture)
     marker.write_text(json.dumps(wanted) + "\n", encoding="utf-8")
     return capture
+
+
+def prepare_line(plan: Plan, seed: int) -> tuple[LineResult, list[FrameTruth]]:
+    """Record (or reuse) one line: the line with no runs yet, and its ground truth."""
+    folder = plan.folder / f"seed-{seed}"
+    folder.mkdir(parents=True, exist_ok=True)
+    frames, summary = _line_facts(plan, seed)
+    capture = record_line(plan, seed, frames, folder)
+    truths = load_truth(truth_path(capture))
+    seen = {o.id for t in truths for o in t.objects if o.pixels >= plan.min_pixels}
+    return LineResult(seed, plan.source(seed), f"{summary}, {len(seen)} objects", frames), truths
+
+
+def run_tracker(
+    plan: Plan, tracker: str, capture: Path, truths: list[FrameTruth], folder: Path,
+    extra: Sequence[str] = (),
+) -> TrackerRun:  # fmt: skip
+    """One tracker on a recorded line, its outputs in `folder` (`extra`: more arguments to
+    its command), scored both ways; what goes wrong is the run's error, not an exception."""
+    tracks, masks = folder / f"{tracker}.tracks.jsonl", folder / f"{tracker}.masks.npz"
+    start = time.perf_counter()
+    try:
+        for p in (tracks, masks):
+            p.unlink(missing_ok=True)
+        argv = [*COMMANDS[tracker](capture, tracks, masks), *extra]
+        run_step(argv, folder / f"{tracker}.log", tracker)
+        elapsed = time.perf_counter() - start
+        files = read_run(capture, tracks, masks, truths)
+        scores = evaluate(files.truths, files.tracks, files.masks, files.rays, plan.gate,
+                          plan.min_pixels, plan.min_iou)  # fmt: skip
+        return TrackerRun(tracker, scores, seconds=elapsed)
+    except Exception as exc:
+        return TrackerRun(tracker, None, describe(exc), time.perf_counter() - start)
 
 
 def run_line(plan: Plan, seed: int) -> LineResult:
@@ -278,62 +295,49 @@ def run_line(plan: Plan, seed: int) -> LineResult:
 
     Whatever goes wrong is the line's error, or one tracker's, never an exception.
     """
-    source = plan.source(seed)
-    folder = plan.folder / f"seed-{seed}"
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        frames, summary = _line_facts(plan, seed)
-        capture = record_line(plan, seed, frames, folder)
-        truths = load_truth(truth_path(capture))
+        line, truths = prepare_line(plan, seed)
     except Exception as exc:
-        return LineResult(seed, source, error=_describe(exc))
-    seen = {o.id for t in truths for o in t.objects if o.pixels >= plan.min_pixels}
-    summary += f", {len(seen)} objects"
-    runs = []
-    for tracker in plan.trackers:
-        tracks, masks = folder / f"{tracker}.tracks.jsonl", folder / f"{tracker}.masks.npz"
-        start = time.perf_counter()
-        try:
-            for p in (tracks, masks):
-                p.unlink(missing_ok=True)
-            _run(COMMANDS[tracker](capture, tracks, masks), folder / f"{tracker}.log", tracker)
-            elapsed = time.perf_counter() - start
-            files = read_run(capture, tracks, masks, truths)
-            scores = evaluate(files.truths, files.tracks, files.masks, files.rays, plan.gate,
-                              plan.min_pixels, plan.min_iou)  # fmt: skip
-            runs.append(TrackerRun(tracker, scores, seconds=elapsed))
-        except Exception as exc:
-            runs.append(TrackerRun(tracker, None, _describe(exc), time.perf_counter() - start))
-    return LineResult(seed, source, summary, frames, tuple(runs))
+        return LineResult(seed, plan.source(seed), error=describe(exc))
+    folder = plan.folder / f"seed-{seed}"
+    capture = folder / "capture.tofcap"
+    runs = tuple(run_tracker(plan, t, capture, truths, folder) for t in plan.trackers)
+    return replace(line, runs=runs)
 
 
-def run_lines(plan: Plan, workers: int = 1, say: Callable[[str], None] = print) -> list[LineResult]:
-    """Every line of the plan, `workers` at a time in processes; in the order of the seeds."""
-    done: dict[int, LineResult] = {}
+def line_errors(result: LineResult) -> str | None:
+    """A line's errors in one line, or None when all went well."""
+    return "; ".join(result.errors) or None
 
-    def finished(result: LineResult) -> None:
-        done[result.seed] = result
-        state = "; ".join(result.errors) if result.errors else "ok"
+
+def run_lines(plan: Plan, pool: Pool, say: Callable[[str], None] = print) -> list[LineResult]:
+    """Every line of the plan, one task each on the pool; in the order of the seeds. A line
+    that fails is run once more, and what failed the first time is kept (`retried`)."""
+    done = 0
+
+    def finished(outcome: Outcome[int, LineResult]) -> None:
+        nonlocal done
+        done += 1
+        result = line_of(plan, outcome)
+        state = line_errors(result) or "ok"
         scores = ", ".join(
             f"{r.tracker} MOTA {r.scores.by_centroid.mota:.3f}" for r in result.runs if r.scores
         )
-        say(f"[{len(done)}/{len(plan.seeds)}] seed {result.seed}: {scores or '-'} ({state})")
+        say(f"[{done}/{len(plan.seeds)}] seed {result.seed}: {scores or '-'} ({state})")
 
-    if workers <= 1:
-        for seed in plan.seeds:
-            finished(run_line(plan, seed))
-    else:
-        with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-            futures: dict[Future[LineResult], int] = {
-                pool.submit(run_line, plan, seed): seed for seed in plan.seeds
-            }
-            for future in as_completed(futures):
-                seed = futures[future]
-                try:
-                    finished(future.result())
-                except Exception as exc:  # the worker process itself died
-                    finished(LineResult(seed, plan.source(seed), error=f"worker: {_describe(exc)}"))
-    return [done[seed] for seed in plan.seeds]
+    outcomes = run_tasks(
+        functools.partial(run_line, plan), plan.seeds, pool, failure=line_errors,
+        on_done=finished,
+        on_retry=lambda seed, why: say(f"seed {seed} failed ({why}): running it once more"),
+    )  # fmt: skip
+    return [line_of(plan, o) for o in outcomes]
+
+
+def line_of(plan: Plan, outcome: Outcome[int, LineResult]) -> LineResult:
+    """An outcome as its line: a task that returned nothing failed as a whole."""
+    seed = outcome.item
+    line = outcome.result or LineResult(seed, plan.source(seed), error=outcome.error)
+    return replace(line, retried=outcome.retried)
 
 
 @dataclass(frozen=True)
@@ -387,10 +391,15 @@ class Aggregate:
     @classmethod
     def of_runs(cls, tracker: str, results: Sequence[LineResult]) -> Aggregate:
         scores = [s for r in results if (run := r.run(tracker)) and (s := run.scores)]
+        return cls.of_scores(tracker, scores, len(results))
+
+    @classmethod
+    def of_scores(cls, tracker: str, scores: Sequence[Scores], of: int) -> Aggregate:
+        """Over the runs that were scored, of `of` in all."""
         if not scores:
-            return cls(tracker, 0, len(results), None, None, None)
+            return cls(tracker, 0, of, None, None, None)
         return cls(
-            tracker, len(scores), len(results),
+            tracker, len(scores), of,
             FamilyScore.of([s.by_centroid for s in scores]),
             FamilyScore.of([s.by_iou for s in scores]),
             float(np.mean([s.mask_iou for s in scores])),
@@ -432,52 +441,69 @@ def _difference(x: Aggregate, y: Aggregate) -> list[str]:
     return [*row, "", "—" if xi is None or yi is None else f"{xi - yi:+.3f}"]
 
 
+AGGREGATE_HEAD = ["lines", *FAMILY_COLUMNS, "ID switches", "mean mask IoU"]
+"""The columns of a tracker's scores over a family, after the first (what is scored)."""
+
+
+def aggregate_row(first: str, a: Aggregate) -> list[str]:
+    """A row of `AGGREGATE_HEAD` after `first`: each cell by centroid / by mask IoU."""
+    fc, fi = a.by_centroid, a.by_iou
+    if fc is None or fi is None or a.mean_mask_iou is None:
+        return [first, f"{a.lines} of {a.of}", *["—"] * (len(AGGREGATE_HEAD) - 1)]
+    pairs = [_pair(getattr(fc, f), getattr(fi, f)) for f in FAMILY_COLUMNS.values()]
+    return [first, f"{a.lines} of {a.of}", *pairs, f"{fc.id_switches} / {fi.id_switches}",
+            f"{a.mean_mask_iou:.3f}"]  # fmt: skip
+
+
+SCORE_HEAD = ["MOTA", "IDF1", "HOTA", "DetA", "AssA", "switches", "mask IoU"]
+"""The columns of one run's scores (`score_cells`)."""
+
+
+def score_cells(s: Scores) -> list[str]:
+    """One run's `SCORE_HEAD`: each by centroid / by mask IoU, but the mask IoU."""
+    c, i = s.by_centroid, s.by_iou
+    return [_pair(c.mota, i.mota), _pair(c.idf1, i.idf1), _pair(c.hota.hota, i.hota.hota),
+            _pair(c.hota.deta, i.hota.deta), _pair(c.hota.assa, i.hota.assa),
+            f"{c.id_switches} / {i.id_switches}", f"{s.mask_iou:.3f}"]  # fmt: skip
+
+
+def table(rows: Sequence[Sequence[str]]) -> list[str]:
+    """A Markdown table: the first row its head."""
+    lines = ["| " + " | ".join(rows[0]) + " |", "| " + " | ".join(["---"] * len(rows[0])) + " |"]
+    return lines + ["| " + " | ".join(r) + " |" for r in rows[1:]]
+
+
 def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Aggregate]) -> str:
     """The per-line table, the family table and the failed lines, as Markdown."""
     trackers = plan.trackers
     head = ["seed", "scene", "frames"]
     for t in trackers:
-        head += [f"{t} {name}" for name in ("MOTA", "IDF1", "HOTA", "DetA", "AssA")]
-        head += [f"{t} switches", f"{t} mask IoU"]
-    rows = [head, ["---"] * len(head)]
+        head += [f"{t} {name}" for name in SCORE_HEAD]
+    rows = [head]
     for r in results:
         row = [str(r.seed), r.scene or r.source, str(r.frames or "—")]
         for t in trackers:
             run = r.run(t)
             s = run.scores if run else None
             if s is None:
-                row += ["failed" if r.errors else "—", *[""] * 6]
+                row += ["failed" if r.errors else "—", *[""] * (len(SCORE_HEAD) - 1)]
                 continue
-            c, i = s.by_centroid, s.by_iou
-            row += [_pair(c.mota, i.mota), _pair(c.idf1, i.idf1),
-                    _pair(c.hota.hota, i.hota.hota), _pair(c.hota.deta, i.hota.deta),
-                    _pair(c.hota.assa, i.hota.assa),
-                    f"{c.id_switches} / {i.id_switches}", f"{s.mask_iou:.3f}"]  # fmt: skip
+            row += score_cells(s)
         rows.append(row)
-    out = ["## Lines", "", *("| " + " | ".join(x) + " |" for x in rows), "",
+    out = ["## Lines", "", *table(rows), "",
            "MOTA, IDF1, HOTA (its detection and association parts DetA and AssA, by "
            "TrackEval) and ID switches: by centroid / by mask IoU.", "",
            "## Over the family", ""]  # fmt: skip
-    fam = [["tracker", "lines", *FAMILY_COLUMNS, "ID switches", "mean mask IoU"]]
-    fam.append(["---"] * len(fam[0]))
-    for a in aggregates:
-        fc, fi = a.by_centroid, a.by_iou
-        if fc is None or fi is None or a.mean_mask_iou is None:
-            fam.append([a.tracker, f"{a.lines} of {a.of}", *["—"] * (len(fam[0]) - 2)])
-            continue
-        pairs = [_pair(getattr(fc, f), getattr(fi, f)) for f in FAMILY_COLUMNS.values()]
-        fam.append([
-            a.tracker, f"{a.lines} of {a.of}", *pairs,
-            f"{fc.id_switches} / {fi.id_switches}", f"{a.mean_mask_iou:.3f}",
-        ])  # fmt: skip
+    fam = [["tracker", *AGGREGATE_HEAD]]
+    fam += [aggregate_row(a.tracker, a) for a in aggregates]
     if len(aggregates) >= 2:
         fam.append(_difference(aggregates[0], aggregates[1]))
-    out += ["| " + " | ".join(x) + " |" for x in fam]
+    out += table(fam)
     out += ["", "Each cell: by centroid / by mask IoU; ID switches summed over the lines."]
-    failed = [r for r in results if r.errors]
-    if failed:
-        out += ["", "## Failed lines", ""]
-        out += [f"- seed {r.seed} ({r.source}): {'; '.join(r.errors)}" for r in failed]
+    out += failure_sections(
+        [(f"seed {r.seed} ({r.source})", "; ".join(r.errors)) for r in results if r.errors],
+        [(f"seed {r.seed}", r.retried) for r in results if r.retried],
+    )
     return "\n".join(out) + "\n"
 
 
@@ -492,51 +518,71 @@ def report(plan: Plan, results: Sequence[LineResult]) -> tuple[str, dict[str, An
         "aggregate": [a.to_json() for a in aggregates],
         "failed": [{"seed": r.seed, "source": r.source, "errors": r.errors}
                    for r in results if r.errors],
+        **({"retried": [{"seed": r.seed, "first_error": r.retried} for r in results
+                        if r.retried]} if any(r.retried for r in results) else {}),
     }  # fmt: skip
     return markdown(plan, results, aggregates), doc
 
 
-def run(args: argparse.Namespace) -> int:
-    """`tofcut evaluate --family/--scene ... --seeds ...`: 0 if every line ran, else 1."""
+def plan_from_args(args: argparse.Namespace, trackers: tuple[str, ...]) -> Plan:
+    """The plan the family options ask for, every value checked; `work` is a new temporary
+    folder unless `--work` names one (which a cluster's nodes must all see)."""
     if not args.seeds:
         raise SourceError("--family/--scene needs --seeds, e.g. --seeds 1000-1039")
-    if args.workers < 1 or (args.frames is not None and args.frames < 1):
-        raise SourceError("--workers and --frames must be at least 1")
+    if args.frames is not None and args.frames < 1:
+        raise SourceError("--frames must be at least 1")
     if args.seconds is not None and args.seconds <= 0:
         raise SourceError("--seconds must be more than 0")
     if not 0.0 < args.min_iou <= 1.0 or args.gate <= 0 or args.min_pixels < 1:
         raise SourceError("--min-iou must be in (0, 1], --gate > 0 and --min-pixels >= 1")
+    if args.ray_address is not None and args.work is None:
+        raise BatchError("--ray-address needs --work DIR, a folder every node sees at that path")
     pattern = f"family:{args.family}:{{seed}}" if args.family is not None else args.scene
     work = args.work or Path(tempfile.mkdtemp(prefix="tofcut-evaluate-"))
-    plan = Plan(
-        pattern, args.seeds, args.trackers, work,
+    return Plan(
+        pattern, args.seeds, trackers, work,
         seconds=args.seconds if args.seconds is not None else DEFAULT_SECONDS,
         frames=args.frames, gate=args.gate, min_pixels=args.min_pixels, min_iou=args.min_iou,
     )  # fmt: skip
-    try:
-        print(
-            f"evaluating {', '.join(plan.trackers)} on {len(plan.seeds)} lines of "
-            f"emulator:{pattern}, {args.workers} at a time, in {plan.folder}",
-            flush=True,
-        )
-        results = run_lines(plan, args.workers, lambda text: print(text, flush=True))
-    finally:
-        if args.work is None:
-            shutil.rmtree(work, ignore_errors=True)
-    text, doc = report(plan, results)
+
+
+def write_report(args: argparse.Namespace, name: str, text: str, doc: dict[str, Any]) -> None:
+    """Print the Markdown; write it and the JSON as `--out`/NAME.md and .json, and the JSON
+    to `--json`."""
     print()
     print(text, end="")
     if args.out:
         args.out.mkdir(parents=True, exist_ok=True)
-        (args.out / "evaluation.md").write_text(text, encoding="utf-8")
-        (args.out / "evaluation.json").write_text(json.dumps(doc, indent=2) + "\n", "utf-8")
-        print(f"wrote {args.out / 'evaluation.md'} and {args.out / 'evaluation.json'}")
+        (args.out / f"{name}.md").write_text(text, encoding="utf-8")
+        (args.out / f"{name}.json").write_text(json.dumps(doc, indent=2) + "\n", "utf-8")
+        print(f"wrote {args.out / f'{name}.md'} and {args.out / f'{name}.json'}")
     if args.json:
         args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    failed = sum(1 for r in results if r.errors)
+
+
+def failed_exit(failed: int, of: int, what: str) -> int:
+    """The exit status of a batch: 1, said on stderr, when any of its tasks failed."""
     if failed:
-        print(
-            f"tofcut: error: {failed} of {len(results)} lines failed (see above)", file=sys.stderr
-        )
+        print(f"tofcut: error: {failed} of {of} {what} failed (see above)", file=sys.stderr)
         return 1
     return 0
+
+
+def say(text: str) -> None:
+    print(text, flush=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    """`tofcut evaluate --family/--scene ... --seeds ...`: 0 if every line ran, else 1."""
+    plan = plan_from_args(args, args.trackers)
+    try:
+        with Pool.from_args(args) as pool:
+            say(f"evaluating {', '.join(plan.trackers)} on {len(plan.seeds)} lines of "
+                f"emulator:{plan.pattern}, {pool.where}, in {plan.folder}")  # fmt: skip
+            results = run_lines(plan, pool, say)
+    finally:
+        if args.work is None:
+            shutil.rmtree(plan.work, ignore_errors=True)
+    text, doc = report(plan, results)
+    write_report(args, "evaluation", text, doc)
+    return failed_exit(sum(1 for r in results if r.errors), len(results), "lines")
