@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from typing import Any
 
 import numpy as np
 
@@ -25,6 +26,12 @@ MAX_BOXES = GRID[0] * GRID[1]
 def crowd_scene(boxes: int, seed: int = 0) -> Scene:
     """The conveyor scene with `boxes` (1 to 20) boxes in view at t = 0, spread over a 5 × 4
     grid under the camera, crawling along the belt; sizes and turns are drawn from `seed`."""
+    doc = crowd_doc(boxes, seed)
+    return parse_scene(doc, doc["name"])
+
+
+def crowd_doc(boxes: int, seed: int = 0) -> dict[str, Any]:
+    """`crowd_scene`'s scene file, as a TOML document (`driver.toml_writer.dumps` writes it)."""
     if not 1 <= boxes <= MAX_BOXES:
         raise SceneError(f"a crowd has 1 to {MAX_BOXES} boxes, not {boxes}")
     doc = tomllib.loads(scene_path("conveyor").read_text(encoding="utf-8"))
@@ -51,7 +58,7 @@ def crowd_scene(boxes: int, seed: int = 0) -> Scene:
             }
         )
     doc["object"] = objects
-    return parse_scene(doc, doc["name"])
+    return doc
 
 
 def resized(scene: Scene, width: int, height: int) -> Scene:

@@ -154,6 +154,10 @@ class _Queued:
     """A replay's recorded frame (`Recording.take`)."""
 
 
+EMULATOR_SERIAL = 0x4000002F
+"""An emulated camera's serial number unless it is given another (several on one host)."""
+
+
 class EmulatedCamera:
     """One emulated SR-USB camera, fed by a scene (`TapSource`) or a `Recording`.
 
@@ -180,7 +184,7 @@ class EmulatedCamera:
         self,
         source: TapSource,
         *,
-        serial: int = 0x4000002F,
+        serial: int = EMULATOR_SERIAL,
         firmware: int = 0x0104,
         realtime: bool = True,
         registers: dict[Register, int] | None = None,

@@ -47,6 +47,7 @@ from tofcut._closing import Closing
 from tofcut.driver.errors import TofcutError
 from tofcut.driver.protocol import DeviceInfo
 from tofcut.sim.device import (
+    EMULATOR_SERIAL,
     BulkOverflow,
     BulkTimeout,
     Detached,
@@ -99,7 +100,7 @@ class EmulatorProcess(Closing):
         make_source: Callable[[], TapSource],
         *,
         source: TapSource | None = None,
-        serial: int = 0x4000002F,
+        serial: int = EMULATOR_SERIAL,
         firmware: int = 0x0104,
         realtime: bool = True,
         registers: dict[Any, int] | None = None,

@@ -30,9 +30,17 @@ def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, cap
     assert doc["meta"]["errors"] == {}
     assert doc["meta"]["quick"] is True
     verdicts = {t["what"]: t["verdict"] for t in doc["targets"]}
-    assert len(verdicts) == 8
-    assert set(verdicts.values()) <= {"PASS", "MISS"}  # every target measured, even quick
+    assert len(verdicts) == 10
+    eight = {what for what in verdicts if what.startswith("8 cameras")}
+    assert len(eight) == 2
+    assert {verdicts[what] for what in eight} == {"not measured"}  # quick: 2 cameras only
+    # every other target is measured, even quick
+    assert {v for what, v in verdicts.items() if what not in eight} <= {"PASS", "MISS"}
     stages = doc["stages"]
+    (two,) = stages["cameras"]["rows"]
+    assert two["cameras"] == 2
+    assert two["frames"] > 0
+    assert two["cpu_ms_per_camera_frame"] > 0
     assert [r["objects"] for r in stages["tracker"]["objects"]] == [1, 10]
     assert stages["tracker"]["objects"][1]["tracks_in_view"] == 10
     assert all(r["identical"] for r in stages["segment"]["rows"])
@@ -41,7 +49,8 @@ def test_quick_bench_writes_json_markdown_and_plot_for_every_stage(tmp_path, cap
     assert {f["against"] for f in doc["fits"]} >= {"pixels", "objects"}
     text = (out / "README.md").read_text()
     for heading in ("Targets", "Demodulation", "Segmentation", "Tracker", "Live pipeline",
-                    "Rerun logging", "rendering rate", "How cost grows"):  # fmt: skip
+                    "Rerun logging", "rendering rate", "Cameras per box",
+                    "How cost grows"):  # fmt: skip
         assert f"## {heading}" in text or heading in text, heading
     with Image.open(out / "scaling.png") as image:
         assert image.size[0] > image.size[1] > 100
@@ -89,6 +98,10 @@ def test_verdicts_follow_the_numbers():
     got = {t.what: t.verdict for t in targets({"live": {"core_needed": 0.5, "dropped": 1}})}
     assert got["live pipeline at 50 fps with rerun file output"] == "MISS"
     assert got["live pipeline: frames dropped"] == "MISS"
+    for lost, cpu_ms, verdict in ((0, 5.0, "PASS"), (1, 5.1, "MISS")):
+        eight = {"cameras": 8, "lost": lost, "cpu_ms_per_camera_frame": cpu_ms}
+        got = {t.what: t.verdict for t in targets({"cameras": {"rows": [eight]}})}
+        assert {v for what, v in got.items() if what.startswith("8 cameras")} == {verdict}
 
 
 def test_grabcut_is_judged_against_the_best_energy_of_each_object():

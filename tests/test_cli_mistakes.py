@@ -150,7 +150,9 @@ def test_camera_commands_neither_offer_nor_take_a_capture(capsys, capture, comma
     with pytest.raises(SystemExit):
         main([command, "--help"])
     help_text = capsys.readouterr().out
-    source_help = next(x for x in help_text.splitlines() if x.strip().startswith("SOURCE"))
+    source_help = next(
+        x for x in help_text.splitlines() if x.strip().startswith(("SOURCE", "CAMERA"))
+    )
     assert "FILE.tofcap" not in source_help
     argv = [command, str(capture)] + (["-o", "x.tofcap"] if command == "record" else [])
     assert "reads from a camera" in usage_error(capsys, argv)

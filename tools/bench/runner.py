@@ -24,8 +24,11 @@ STAGES = {
     "live": "tofcut.tools.bench.live",
     "rerun": "tofcut.tools.bench.rerun_logging",
     "render": "tofcut.tools.bench.render",
+    "cameras": "tofcut.tools.bench.cameras",
 }
 """Stage name → module with `run(quick: bool) -> dict` (JSON-able)."""
+WHOLE_MACHINE = frozenset({"cameras"})
+"""Stages that measure the whole machine (several processes at once): not pinned."""
 
 ONE_THREAD = {
     name: "1"
@@ -62,7 +65,7 @@ def run_stage(name: str, quick: bool, out: Path, cpu: int | None) -> StageRun:
     cmd = [sys.executable, "-m", "tofcut.tools.bench.runner", name, str(out)]
     if quick:
         cmd.append("--quick")
-    if cpu is not None:
+    if cpu is not None and name not in WHOLE_MACHINE:
         cmd += ["--cpu", str(cpu)]
     start = time.perf_counter()
     proc = subprocess.run(

@@ -29,7 +29,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         help="measure every stage on one core, against its naive form and its peers",
         description="Time demodulation, segmentation (against the full-frame cut and OpenCV's "
         "grabCut), the tracker with 1-20 objects, the live pipeline with rerun output and the "
-        "emulator, each in its own process pinned to one core; report the targets (PASS / "
+        "emulator, each in its own process pinned to one core, and tofcut live with 1, 2, 4 "
+        "and 8 emulated cameras on the whole machine; report the targets (PASS / "
         "MISS) and how each cost grows with objects and pixels. Exit status 1 when a stage "
         "failed to run; a MISS is a measurement, reported, not a failure of the command. "
         "--quick is a smoke run: it checks that every stage runs and reports, and its "

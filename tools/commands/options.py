@@ -6,26 +6,12 @@ import argparse
 
 from tofcut.driver.config import CameraConfig, TriggerMode
 from tofcut.tools.commands.arguments import source
-from tofcut.tools.pipeline.sources import SourceSpec
 
 
-def add_source_argument(
-    parser: argparse.ArgumentParser, default: str | None = None, *, captures: bool = True
-) -> None:
-    """The SOURCE argument; without `captures`, only cameras (`live`, `record`)."""
+def add_source_argument(parser: argparse.ArgumentParser, *, captures: bool = True) -> None:
+    """The SOURCE argument; without `captures`, only cameras (`record`)."""
     help_text = "usb, usb:SERIAL, emulator[:SCENE]" + (" or FILE.tofcap" if captures else "")
-    kind = source(captures=captures)
-    if default is None:
-        parser.add_argument("source", type=kind, metavar="SOURCE", help=help_text)
-    else:
-        parser.add_argument(
-            "source",
-            type=kind,
-            nargs="?",
-            default=SourceSpec.parse(default),
-            metavar="SOURCE",
-            help=f"{help_text} (default: {default})",
-        )
+    parser.add_argument("source", type=source(captures=captures), metavar="SOURCE", help=help_text)
 
 
 def add_camera_options(parser: argparse.ArgumentParser) -> None:

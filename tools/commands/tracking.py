@@ -12,6 +12,7 @@ import functools
 import sys
 import time
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -40,7 +41,7 @@ from tofcut.tools.pipeline.keeping_up import PaceWatch
 from tofcut.tools.pipeline.losses import describe_losses, event_level
 from tofcut.tools.pipeline.mots import DEFORMABLE_CLASS, RIGID_CLASS, MotsWriter
 from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
-from tofcut.tools.pipeline.rerun_sink import NullSink, RerunSink
+from tofcut.tools.pipeline.rerun_sink import CameraTree, NullSink, RerunSink
 from tofcut.tools.pipeline.rerun_target import (
     add_rerun_options,
     check_viewer,
@@ -148,7 +149,23 @@ class StatusLine:
         self._progress.close()
 
 
-def track(args: argparse.Namespace, *, live: bool) -> int:
+class Supervised(Protocol):
+    """What a run is told when it is one camera's worker under a supervisor (`tofcut live
+    CAMERA CAMERA ...`, `tools.commands.cameras`)."""
+
+    serial: int
+    """An emulated camera's serial number (each camera of the box has its own)."""
+    tree: CameraTree
+    """Where the camera logs in the recording."""
+
+    def ready(self) -> None:
+        """The camera, tracker and outputs are ready: returns when the run is to start."""
+
+    def status(self, tracker: Tracker) -> Output:
+        """The output that reports the run's health (instead of the status line)."""
+
+
+def track(args: argparse.Namespace, *, live: bool, supervised: Supervised | None = None) -> int:
     """Run the tracker on the source the arguments name."""
     check_viewer(args)  # before anything slow: a viewer asked for must be there
     params = applied(
@@ -162,17 +179,23 @@ def track(args: argparse.Namespace, *, live: bool) -> int:
             args.source, realtime=not args.fast, seed=args.seed,
             amplitude_threshold=args.amplitude_threshold, reconnect=live, on_event=events.post,
             loop=args.loop,
+            serial=None if supervised is None else supervised.serial,
         )  # fmt: skip
     finally:
         startup().done()
     try:
-        return _track(args, live, opened, events, params)
+        return _track(args, live, opened, events, params, supervised)
     finally:
         opened.close()
 
 
 def _track(
-    args: argparse.Namespace, live: bool, opened: Opened, events: EventRelay, params: TrackerParams
+    args: argparse.Namespace,
+    live: bool,
+    opened: Opened,
+    events: EventRelay,
+    params: TrackerParams,
+    supervised: Supervised | None,
 ) -> int:
     device = opened.device
     meta, _ = run_metadata(opened)
@@ -220,13 +243,14 @@ def _track(
             run_belt.find(BeltFinder())
         direction = belt.geometry.direction if belt else None
         sink = RerunSink.from_args(
-            args, device.calibration, direction, name=f"tofcut {args.source}"
-        )
+            args, device.calibration, direction, name=f"tofcut {args.source}",
+            tree=CameraTree() if supervised is None else supervised.tree,
+        )  # fmt: skip
         events.start([lambda e: sink.event(str(e), event_level(e)), _print_event])
         with CtrlC() as ctrl_c:
             summary = _run(
                 args, live, opened, tracker, sink, events, line, run_belt.at_frame,
-                lambda: ctrl_c.requested,
+                lambda: ctrl_c.requested, supervised,
             )  # fmt: skip
         summary.interrupted |= ctrl_c.requested
         if replay is not None and not summary.interrupted:
@@ -330,6 +354,7 @@ def _run(
     line: ConveyorLine | None,
     prior: Callable[[Frame], VelocityPrior | None],
     stop_asked: Callable[[], bool] = lambda: False,
+    supervised: Supervised | None = None,
 ) -> RunSummary:
     """The pipeline on a capture (progress bar) or a camera (reader thread, status line)."""
     device = opened.device
@@ -370,7 +395,17 @@ def _run(
         f"camera {device.serial} ({args.source}): {device.config.describe()}",
         file=sys.stderr if args.stdout else sys.stdout,
     )
-    outputs.append(StatusLine(Progress(None, "live"), tracker))
+    if supervised is None:
+        outputs.append(StatusLine(Progress(None, "live"), tracker))
+    else:
+        outputs.append(supervised.status(tracker))
+        try:
+            supervised.ready()
+        except KeyboardInterrupt:  # stopped before the run began: the files are left whole
+            for out in outputs:
+                out.close()
+            raise
+        started = time.perf_counter()
     fast = args.fast and args.source.kind == "emulator"  # a virtual clock: no frame to lose
     feed = LiveFeed(device, wait_for_room=fast).start()
     rate = device.config.frame_rate

@@ -132,52 +132,70 @@ def annotation_context(track_ids: Iterable[int]) -> rr.AnnotationContext:
     return rr.AnnotationContext(classes)
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """Images with the masks and the 3D scene on top; health and events below."""
+def under(root: str, path: str) -> str:
+    """An entity path inside a camera's tree (`cameras/SERIAL`); `root` "" is the top."""
+    return f"{root}/{path}" if root else path
+
+
+def camera_layout(root: str = "", name: str | None = None) -> rrb.Container:
+    """One camera's views: images with the masks and the 3D scene on top; health and
+    events below."""
+    at = functools.partial(under, root)
+    camera, depth, amplitude, intensity, masks = (
+        at(p) for p in (CAMERA, DEPTH, AMPLITUDE, INTENSITY, MASKS)
+    )
+    status = at(STATUS)
     images = rrb.Vertical(
-        rrb.Spatial2DView(name="depth and tracks", origin=CAMERA, contents=[DEPTH, MASKS]),
+        rrb.Spatial2DView(name="depth and tracks", origin=camera, contents=[depth, masks]),
         rrb.Horizontal(
             rrb.Spatial2DView(
-                name="amplitude and tracks", origin=CAMERA, contents=[AMPLITUDE, MASKS]
+                name="amplitude and tracks", origin=camera, contents=[amplitude, masks]
             ),
-            rrb.Spatial2DView(name="intensity", origin=CAMERA, contents=[INTENSITY]),
+            rrb.Spatial2DView(name="intensity", origin=camera, contents=[intensity]),
         ),
         row_shares=[3, 2],
     )
     scene = rrb.Spatial3DView(
         name="3D",
-        origin=WORLD,
+        origin=at(WORLD),
         # The point cloud is the driver's exact one; the depth image's back-projection would
         # repeat it through rerun's distortion-free pinhole, and grey images would hide the
         # masks in the camera's frustum.
-        contents=["+ world/**", f"- {DEPTH}", f"- {AMPLITUDE}", f"- {INTENSITY}"],
+        contents=[f"+ {at(WORLD)}/**", f"- {depth}", f"- {amplitude}", f"- {intensity}"],
         eye_controls=rrb.EyeControls3D(
             position=EYE_POSITION, look_target=EYE_TARGET, eye_up=(0.0, -1.0, 0.0)
         ),
     )
     no_legend = rrb.PlotLegend(visible=False)
     health = rrb.Horizontal(
-        rrb.TimeSeriesView(name="frames per second", origin=f"{STATUS}/fps", plot_legend=no_legend),
+        rrb.TimeSeriesView(name="frames per second", origin=f"{status}/fps", plot_legend=no_legend),
         rrb.TimeSeriesView(
-            name="latency (ms)", origin=f"{STATUS}/latency_ms", plot_legend=no_legend
+            name="latency (ms)", origin=f"{status}/latency_ms", plot_legend=no_legend
         ),
         rrb.TimeSeriesView(
             name="tracks and lost frames",
-            origin=STATUS,
-            contents=[f"{STATUS}/tracks", f"{STATUS}/dropped_frames", f"{STATUS}/rerun_dropped"],
+            origin=status,
+            contents=[f"{status}/tracks", f"{status}/dropped_frames", f"{status}/rerun_dropped"],
         ),
         rrb.TimeSeriesView(
-            name="belt speed (m/s)", origin=f"{STATUS}/belt_speed_mps", plot_legend=no_legend
+            name="belt speed (m/s)", origin=f"{status}/belt_speed_mps", plot_legend=no_legend
         ),
-        rrb.TextLogView(name="events", origin="events"),
+        rrb.TextLogView(name="events", origin=at("events")),
         column_shares=[1, 1, 1, 1, 2],
     )
+    return rrb.Vertical(
+        rrb.Horizontal(images, scene, column_shares=[2, 3]), health, row_shares=[3, 1], name=name
+    )
+
+
+def default_blueprint(roots: Sequence[str] = ("",)) -> rrb.Blueprint:
+    """The layout of one camera; of several (their trees' `roots`), a tab each."""
+    if len(roots) == 1:
+        top: rrb.Container = camera_layout(roots[0])
+    else:
+        top = rrb.Tabs(*(camera_layout(r, r.rpartition("/")[2]) for r in roots))
     return rrb.Blueprint(
-        rrb.Vertical(
-            rrb.Horizontal(images, scene, column_shares=[2, 3]), health, row_shares=[3, 1]
-        ),
-        rrb.TimePanel(timeline=SEQUENCE, state="collapsed"),
-        collapse_panels=True,
+        top, rrb.TimePanel(timeline=SEQUENCE, state="collapsed"), collapse_panels=True
     )
 
 
@@ -280,9 +298,13 @@ class FrameLogger:
         rec: rr.RecordingStream,
         calibration: Calibration,
         belt_direction: npt.ArrayLike | None = None,
+        root: str = "",
     ) -> None:
+        """`root`: the camera's tree (`cameras/SERIAL`) in a recording of several; "" (one
+        camera) logs at the top."""
         self.rec = rec
         self.calibration = calibration
+        self._at = functools.partial(under, root)
         self.belt_direction = (
             None if belt_direction is None else np.asarray(belt_direction, np.float64)
         )
@@ -295,10 +317,14 @@ class FrameLogger:
         """Frames logged without a device time: theirs is past `MAX_DEVICE_TIME_US`."""
         self._log_static()
         shape = (calibration.height, calibration.width)
-        self._depth = ImageColumn(rec, DEPTH, rr.DepthImage(np.zeros(shape, np.uint16), meter=1e3))
-        self._amplitude = ImageColumn(rec, AMPLITUDE, rr.Image(np.zeros(shape, np.uint8)))
-        self._intensity = ImageColumn(rec, INTENSITY, rr.Image(np.zeros(shape, np.uint8)))
-        self._masks = ImageColumn(rec, MASKS, rr.SegmentationImage(np.zeros(shape, np.uint16)))
+        self._depth = ImageColumn(
+            rec, self._at(DEPTH), rr.DepthImage(np.zeros(shape, np.uint16), meter=1e3)
+        )
+        self._amplitude = ImageColumn(rec, self._at(AMPLITUDE), rr.Image(np.zeros(shape, np.uint8)))
+        self._intensity = ImageColumn(rec, self._at(INTENSITY), rr.Image(np.zeros(shape, np.uint8)))
+        self._masks = ImageColumn(
+            rec, self._at(MASKS), rr.SegmentationImage(np.zeros(shape, np.uint16))
+        )
 
     def restart(self) -> None:
         """Log again what a new file of the recording needs before its first frame (the
@@ -308,14 +334,14 @@ class FrameLogger:
         for column in (self._depth, self._amplitude, self._intensity, self._masks):
             column.log_static(self.rec)
         if self._belt_arrow is not None:
-            self.rec.log(BELT, self._belt_arrow, static=True)
+            self.rec.log(self._at(BELT), self._belt_arrow, static=True)
         self._context_ids = None
 
     def _log_static(self) -> None:
         c = self.calibration
-        self.rec.log(WORLD, rr.ViewCoordinates.RDF, static=True)
+        self.rec.log(self._at(WORLD), rr.ViewCoordinates.RDF, static=True)
         self.rec.log(
-            CAMERA,
+            self._at(CAMERA),
             rr.Pinhole(
                 focal_length=[c.fx, c.fy],
                 principal_point=[c.cx, c.cy],
@@ -326,9 +352,11 @@ class FrameLogger:
             static=True,
         )
         for name, title in SERIES.items():
-            self.rec.log(f"{STATUS}/{name}", rr.SeriesLines(names=title), static=True)
+            self.rec.log(self._at(f"{STATUS}/{name}"), rr.SeriesLines(names=title), static=True)
         # One colour for every background point: rerun applies a single value to them all.
-        self.rec.log(BACKGROUND, rr.Points3D.from_fields(colors=[BACKGROUND_RGB]), static=True)
+        self.rec.log(
+            self._at(BACKGROUND), rr.Points3D.from_fields(colors=[BACKGROUND_RGB]), static=True
+        )
 
     def write_frames(self, rows: Sequence[FrameRow], sink_dropped: int) -> None:
         """Everything about these frames (in order), each at its sequence number, device time
@@ -366,16 +394,16 @@ class FrameLogger:
         for row in rows:
             depths.append(depth_mm(row.tracked.frame))
             clouds.append(cloud(row.tracked))
-        send(DEPTH, times, [self._depth.column(np.stack(depths))])
+        send(self._at(DEPTH), times, [self._depth.column(np.stack(depths))])
         amplitude = gray8([f.amplitude for f in frames], IMAGE_FULL_SCALE["amplitude"])
-        send(AMPLITUDE, times, [self._amplitude.column(amplitude)])
+        send(self._at(AMPLITUDE), times, [self._amplitude.column(amplitude)])
         intensity = gray8([f.intensity for f in frames], IMAGE_FULL_SCALE["intensity"])
-        send(INTENSITY, times, [self._intensity.column(intensity)])
+        send(self._at(INTENSITY), times, [self._intensity.column(intensity)])
         labels = np.array([row.tracked.labels for row in rows], np.uint16)
-        send(MASKS, times, [self._masks.column(labels)])
+        send(self._at(MASKS), times, [self._masks.column(labels)])
         lengths = [len(positions) for positions, _, _ in clouds]
         send(
-            POINTS,
+            self._at(POINTS),
             times,
             [
                 rr.DescribedComponentBatch(
@@ -388,7 +416,7 @@ class FrameLogger:
         )
         background = [b for _, _, b in clouds]
         send(
-            BACKGROUND,
+            self._at(BACKGROUND),
             times,
             [
                 rr.DescribedComponentBatch(
@@ -401,7 +429,7 @@ class FrameLogger:
 
     def write_event(self, text: str, level: str) -> None:
         """A device or pipeline event, at the time of the last frame written."""
-        self.rec.log(DEVICE_EVENTS, rr.TextLog(text, level=level))
+        self.rec.log(self._at(DEVICE_EVENTS), rr.TextLog(text, level=level))
 
     def sync(self) -> None:
         """Wait until everything logged so far has reached the sinks (a file: written)."""
@@ -438,12 +466,12 @@ class FrameLogger:
             rec.disable_timeline(DEVICE_TIME)
         ids = frozenset(t.id for t in tracked.tracks) | frozenset(tracked.born)
         if ids != self._context_ids:  # ids never repeat; every id in the masks is a track's
-            rec.log(WORLD, annotation_context(ids))
+            rec.log(self._at(WORLD), annotation_context(ids))
             self._context_ids = ids
         for i in tracked.born:
-            rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} born", level="INFO"))
+            rec.log(self._at(TRACK_EVENTS), rr.TextLog(f"{track_label(i)} born", level="INFO"))
         for i in tracked.ended:
-            rec.log(TRACK_EVENTS, rr.TextLog(f"{track_label(i)} ended", level="INFO"))
+            rec.log(self._at(TRACK_EVENTS), rr.TextLog(f"{track_label(i)} ended", level="INFO"))
         if self.belt_direction is not None and not self._belt_logged:
             self._log_belt(tracked)
 
@@ -473,10 +501,12 @@ class FrameLogger:
             (TextBatch(labels), BOX_LABELS),
         ]
         self.rec.send_columns(
-            BOXES, times, [rr.DescribedComponentBatch(*b).partition(counts) for b in batches]
+            self._at(BOXES),
+            times,
+            [rr.DescribedComponentBatch(*b).partition(counts) for b in batches],
         )
         self.rec.send_columns(
-            TRAILS,
+            self._at(TRAILS),
             times,
             [
                 rr.DescribedComponentBatch(LineStrip3DBatch(strips), TRAIL_STRIPS).partition(
@@ -514,7 +544,7 @@ class FrameLogger:
             colors=[BELT_RGB],
             radii=[0.006],
         )
-        self.rec.log(BELT, self._belt_arrow, static=True)
+        self.rec.log(self._at(BELT), self._belt_arrow, static=True)
         self._belt_logged = True
 
     def _send_status(
@@ -539,7 +569,7 @@ class FrameLogger:
                     values.append(value)
             if at:
                 self.rec.send_columns(
-                    f"{STATUS}/{name}",
+                    self._at(f"{STATUS}/{name}"),
                     time_columns(at, device_time),
                     [rr.DescribedComponentBatch(ScalarBatch(values), SCALARS).partition()],
                 )

@@ -89,6 +89,22 @@ class SinkStats:
     tracker, unlike rerun's native encoder threads)."""
 
 
+@dataclass(frozen=True)
+class CameraTree:
+    """Where one camera's worker logs in a recording that several cameras share: under
+    `root` (`cameras/SERIAL`), in the recording `recording_id`, whose layout has a tab for
+    each of `roots`. The default is one camera's recording, at the top."""
+
+    root: str = ""
+    recording_id: str | None = None
+    """None: a recording of its own."""
+    roots: tuple[str, ...] = ("",)
+
+    def __post_init__(self) -> None:
+        if self.root not in self.roots:
+            raise ValueError(f"the camera's tree {self.root!r} is not among {self.roots}")
+
+
 @dataclass(frozen=True, eq=False)
 class _Frame:
     row: FrameRow
@@ -117,6 +133,7 @@ class RerunSink(Closing):
         name: str | None = None,
         queue_frames: int | None = None,
         lossless: bool | None = None,
+        tree: CameraTree = CameraTree(),
     ) -> None:
         self.target = target
         self.lossless = target.lossless if lossless is None else lossless
@@ -125,16 +142,16 @@ class RerunSink(Closing):
             raise ValueError("the rerun queue must hold at least one frame")
         self.batch_frames = min(SYNC_FRAMES if self.lossless else LIVE_BATCH_FRAMES, self.capacity)
         self.delay_s = FILE_DELAY_S if self.lossless else LIVE_DELAY_S
-        rec = rr.RecordingStream(APP_ID, recording_id=uuid.uuid4())
+        rec = rr.RecordingStream(APP_ID, recording_id=tree.recording_id or uuid.uuid4())
         try:
-            self._blueprint = BlueprintSource(rec, default_blueprint())
+            self._blueprint = BlueprintSource(rec, default_blueprint(tree.roots))
             target.attach(rec, self._blueprint)
         except Exception as exc:
             raise RerunOutputError(f"cannot start rerun output ({target.kind}): {exc}") from exc
         self._name = name
         if name:
             rec.send_recording_name(name)
-        self._writer = FrameLogger(rec, calibration, belt_direction)
+        self._writer = FrameLogger(rec, calibration, belt_direction, tree.root)
         self._files: list[Path] = [target.path] if target.path is not None else []
         self._segment_started = time.monotonic()
         self._cond = threading.Condition()
@@ -160,6 +177,7 @@ class RerunSink(Closing):
         belt_direction: npt.ArrayLike | None = None,
         *,
         name: str | None = None,
+        tree: CameraTree = CameraTree(),
     ) -> RerunSink | NullSink:
         """The sink `add_rerun_options` asked for; says where the recording goes.
 
@@ -171,7 +189,7 @@ class RerunSink(Closing):
         print(f"rerun: {target.describe()}", file=out, flush=True)
         if target.kind == "none":
             return NullSink()
-        return cls(calibration, target, belt_direction, name=name)
+        return cls(calibration, target, belt_direction, name=name, tree=tree)
 
     # --- the hot path -----------------------------------------------------------------------
 

@@ -27,7 +27,7 @@ from tofcut.driver.errors import ConfigError, TofcutError
 from tofcut.driver.events import DeviceEvent
 from tofcut.driver.protocol import MAX_SENSOR_SIDE
 from tofcut.sim.catalog import open_scene
-from tofcut.sim.device import EmulatedCamera, EmulatedDevice
+from tofcut.sim.device import EMULATOR_SERIAL, EmulatedCamera, EmulatedDevice
 from tofcut.sim.pattern import TestPattern
 from tofcut.sim.process import EmulatorProcess
 from tofcut.sim.renderer import SceneSource
@@ -234,6 +234,7 @@ def open_source(
     virtual_host_clock: bool = False,
     own_process: bool | None = None,
     loop: bool = False,
+    serial: int | None = None,
 ) -> Opened:
     """Open a USB or emulated camera, or a capture that replays like one.
 
@@ -246,7 +247,9 @@ def open_source(
     its own (`EmulatorProcess`), so that rendering its scene does not take the tracker's
     core; by default it does when it runs in real time (where the host must keep up), and
     not when it is not (no clock to keep up with, and no process to start). `loop` replays
-    an emulated camera's capture over and over. Close the result with `Opened.close()`.
+    an emulated camera's capture over and over. An emulated camera has the serial number
+    `serial` if given (several on one host need their own), else its scene's default or its
+    capture's. Close the result with `Opened.close()`.
     """
     if spec.kind == "capture":
         assert spec.arg is not None
@@ -265,7 +268,8 @@ def open_source(
         assert spec.arg is not None
         replay = read_index(spec.arg)
         recipe = functools.partial(CaptureReplay, replay, loop=loop)
-        serial, firmware = replay.serial, replay.firmware
+        firmware = replay.firmware
+        serial = replay.serial if serial is None else serial
         if own_process:
             emulator = EmulatorProcess(recipe, realtime=realtime, serial=serial, firmware=firmware)
         else:
@@ -274,13 +278,14 @@ def open_source(
     else:
         source = scene_source(spec.arg, seed)
         registers = source.settings.registers if isinstance(source, SceneSource) else None
+        serial = EMULATOR_SERIAL if serial is None else serial
         if own_process:
             emulator = EmulatorProcess(
                 scene_recipe(spec.arg, seed), source=source, realtime=realtime,
-                registers=registers,
+                registers=registers, serial=serial,
             )  # fmt: skip
         else:
-            emulator = EmulatedCamera(source, realtime=realtime, registers=registers)
+            emulator = EmulatedCamera(source, realtime=realtime, registers=registers, serial=serial)
         metadata = scene_metadata(source)
     backend = EmulatedBackend([emulator])
     clock_ns = time.time_ns
