@@ -167,3 +167,13 @@ def test_a_resized_scene_keeps_the_horizontal_field_of_view():
     np.testing.assert_allclose(a[72, 0], b[144:146, 0:2].mean(axis=(0, 1)), atol=2e-3)
     with pytest.raises(SceneError):
         resized(scene, 4, 4)
+
+
+def test_the_profile_ranks_the_tracker_s_own_steps():
+    from tofcut.tools.bench.profile import profile
+
+    report = profile(objects=2, frames=3, top=40)
+    assert "Ordered by: internal time" in report
+    assert "Ordered by: cumulative time" in report
+    assert "tracker.py:" in report  # the per-frame step was timed
+    assert "(update)" in report

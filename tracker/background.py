@@ -265,7 +265,7 @@ class BackgroundModel:
         behind it at the height of something on the belt reads an object in front of the far
         surface; there, a range as far in front of the scenery as it read behind it."""
         belt = self._wrapped_belt
-        if belt is None:
+        if belt is None or not self._wrapped.any():
             return frame.range
         with np.errstate(invalid="ignore"):
             behind = frame.range - self.range
