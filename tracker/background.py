@@ -5,6 +5,9 @@ the far range that pixel keeps returning to. It starts from the first frames (th
 of them, so objects that pass through do not stick), and afterwards it follows the scene
 where nothing is tracked: slowly towards what is seen, and at once where the scenery turns
 out to be farther than thought (an object that stood still at the start and then left).
+Scenery beyond the camera's unambiguous range reads near, its phase wrapped round: an object
+in front of it reads farther than it, and is told by its height over the belt
+(`BackgroundModel.seen_range`).
 """
 
 from __future__ import annotations
