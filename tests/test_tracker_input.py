@@ -95,7 +95,6 @@ def test_a_float_parameter_given_as_a_whole_number_compiles_no_kernel_again():
     [
         ({"beta": True}, "TrackerParams.beta must be a number, got True"),
         ({"smoothness": "0.8"}, "TrackerParams.smoothness must be a number"),
-        ({"background": BackgroundParams(noise_factor=True)}, "BackgroundParams.noise_factor must"),
         ({"motion": {"accel_sigma": 1.0}}, "TrackerParams.motion must be a MotionParams"),
         ({"gate_m": 10**400}, "TrackerParams.gate_m is too large"),
     ],
@@ -103,3 +102,9 @@ def test_a_float_parameter_given_as_a_whole_number_compiles_no_kernel_again():
 def test_a_parameter_that_is_not_a_number_is_a_one_line_error(given, message):
     with pytest.raises(TofcutError, match=message):
         TrackerParams(**given)
+
+
+@pytest.mark.parametrize("value", [True, None, "0.02"])
+def test_a_background_parameter_that_is_not_a_number_is_a_one_line_error(value):
+    with pytest.raises(TofcutError, match=r"BackgroundParams\.rate must be a number"):
+        BackgroundParams(rate=value)

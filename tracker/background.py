@@ -13,8 +13,9 @@ in front of it reads farther than it, and is told by its height over the belt
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy import ndimage
@@ -96,6 +97,10 @@ class BackgroundParams:
     """Frames in a row a pixel must read farther than the model before the model moves back."""
 
     def __post_init__(self) -> None:
+        for field in fields(self):
+            value = getattr(self, field.name)
+            if isinstance(value, bool) or not isinstance(value, numbers.Real):
+                raise SegmentError(f"BackgroundParams.{field.name} must be a number, got {value!r}")
         if self.reveal_frames < 1:
             raise SegmentError(f"reveal_frames must be at least 1, got {self.reveal_frames}")
         if self.learn_frames < 1:
