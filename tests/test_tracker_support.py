@@ -88,6 +88,29 @@ def test_only_the_part_of_the_minimum_that_reaches_the_seed_is_kept():
     assert np.array_equal(kept, expected)
 
 
+def test_a_mixed_pixel_on_the_outline_goes_to_the_side_that_fills_most_of_it():
+    # a bar 1 m away in front of a wall 2 m away; column 3 holds mixed pixels between them
+    xyz = np.zeros((3, 6, 3))
+    xyz[..., 2] = 2.0
+    xyz[:, :3, 2] = 1.0
+    xyz[:, 3, 2] = [1.3, 1.5, 1.7]  # 70 %, 50 %, 30 % of the range step is the bar's
+    brightness = np.ones((3, 6))
+    part = np.zeros((3, 6), bool)
+    part[:, :3] = True
+    mask = part.copy()
+    mask[:, 3] = True  # the cut took the whole column
+    valid = np.ones((3, 6), bool)
+    kept = sp.with_mixed_outline(part, mask, xyz, valid, brightness)
+    assert kept[:, 3].tolist() == [True, False, False]
+    assert kept[:, :3].all()
+    assert not kept[:, 4:].any()
+    # a wall four times as bright weighs four times as much in the mix: at 50 % of the
+    # step, the bar fills 4/5 of the pixel; at 70 % of the step behind, still 4/7
+    brightness[:, 4:] = 4.0
+    kept = sp.with_mixed_outline(part, mask, xyz, valid, brightness)
+    assert kept[:, 3].tolist() == [True, True, True]
+
+
 def test_beta_follows_the_extent_the_noise_and_the_contrast():
     rng = np.random.default_rng(2)
     v, u = np.mgrid[0:H, 0:W]

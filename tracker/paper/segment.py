@@ -252,7 +252,8 @@ def segment_arrays(
     labels = solution.labels
     if energy is Energy.SUPPORT:
         reach = params.connect_factor * model.sigma_s
-        labels = sp.reached(labels, xyz, valid, model.pixel, reach)
+        part = sp.reached(labels, xyz, valid, model.pixel, reach)
+        labels = sp.with_mixed_outline(part, labels, xyz, valid, intensity)
     value = en.energy_of(labels, problem.cost1, problem.cost0, problem.weights)
     return Segmentation(
         labels,

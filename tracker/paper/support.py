@@ -14,6 +14,9 @@ with z_t the median height round the seed, at most `SegmentParams.support_height
 edges are eq. (8)'s, times `support_weight`, and the seed is tied to the target. The mask is
 the part of the minimum that reaches the seed through neighbours whose 3D distance is below
 `connect_factor` × σs: the energy says "above the support", the range says "which object".
+The pixels of the minimum on that part's outline which the step cut off are mixed pixels
+(they see the object and what is behind it) and are kept when most of them is the object
+(`with_mixed_outline`).
 """
 
 from __future__ import annotations
@@ -21,11 +24,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from tofcut._types import F64, I64, B
-from tofcut.tracker.neighbours import OFFSETS, pair_slices
+from tofcut.tracker.neighbours import EIGHT, OFFSETS, pair_slices
 from tofcut.tracker.stats import robust_sigma
 
 MIN_SHARE = 0.08
@@ -182,3 +186,35 @@ def reached(mask: B, xyz: F64, valid: B, seed: tuple[int, int], reach_m: float) 
     u, v = seed
     out: B = mask & (parts.reshape(h, w) == parts[v * w + u])
     return out
+
+
+def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, brightness: F64) -> B:
+    """`part` and the pixels of `mask` round it that are mostly `part`'s object.
+
+    A pixel on the outline of an object in front of something else sees both; its range is
+    the mix of the two returns, each weighted by its share of the pixel and its strength.
+    With r_in, b_in the mean range and brightness of its neighbours in `part`, and r_out,
+    b_out those of its neighbours outside `mask` (what is behind), t = (r − r_out) /
+    (r_in − r_out) is the object's weight in the mix, and its share of the pixel is over
+    one half when t·b_out > (1 − t)·b_in. `brightness` stands in for the strength of each
+    return (the frame's intensity). A pixel with no neighbour outside `mask` is kept."""
+    rng = np.linalg.norm(xyz, axis=-1)
+    inside, behind = part & valid, ~mask & valid
+    r_in, b_in, _ = _neighbour_means(inside, rng, brightness)
+    r_out, b_out, n_out = _neighbour_means(behind, rng, brightness)
+    step = r_in - r_out
+    t = np.clip((rng - r_out) / np.where(step != 0.0, step, 1.0), 0.0, 1.0)
+    ring = ndimage.binary_dilation(part, EIGHT) & mask & valid & ~part
+    out: B = part | (ring & ((n_out == 0) | (t * b_out > (1.0 - t) * b_in)))
+    return out
+
+
+def _neighbour_means(where: B, rng: F64, brightness: F64) -> tuple[F64, F64, F64]:
+    """Each pixel's mean range and brightness over its 8 neighbours in `where`, and their
+    number (the means are 0 where there is none)."""
+    kernel = EIGHT.astype(np.float64)
+    count = ndimage.convolve(where.astype(np.float64), kernel, mode="constant")
+    share = 1.0 / np.maximum(count, 1.0)
+    r = ndimage.convolve(np.where(where, rng, 0.0), kernel, mode="constant") * share
+    b = ndimage.convolve(np.where(where, brightness, 0.0), kernel, mode="constant") * share
+    return r, b, count
