@@ -361,7 +361,7 @@ def ball_bound(frame: Frame, truth: FrameTruth, object_id: int, mu_d: F64) -> Ba
     )
 
 
-BETA_FACTORS = (0.25, 0.5, 1.0, 2.0, 4.0)
+BETA_FACTORS = (0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)
 """β of eq. (6) as multiples of the one derived from the data, in the sensitivity sweep."""
 
 
