@@ -198,7 +198,7 @@ def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, brightness: F64) ->
     (r_in − r_out) is the object's weight in the mix, and its share of the pixel is over
     one half when t·b_out > (1 − t)·b_in. `brightness` stands in for the strength of each
     return (the frame's intensity). A pixel with no neighbour outside `mask` is kept."""
-    rng = np.linalg.norm(xyz, axis=-1)
+    rng = np.where(valid, np.linalg.norm(xyz, axis=-1), 0.0)  # invalid ranges never count
     inside, behind = part & valid, ~mask & valid
     r_in, b_in, _ = _neighbour_means(inside, rng, brightness)
     r_out, b_out, n_out = _neighbour_means(behind, rng, brightness)
