@@ -40,12 +40,14 @@ import numpy as np
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.sim.device import EmulatedCamera
+from tofcut.sim.family import draw_line, parse_family_name
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.truth import FrameTruth, load_truth, truth_path
 from tofcut.tools.batch.pool import BatchError, Pool, add_batch_options
 from tofcut.tools.batch.steps import StepFailed, cli, describe, run_step
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
+from tofcut.tools.evaluation.situations import MIN_STEP_M, Situations, situations
 from tofcut.tools.pipeline.sources import SourceError, scene_metadata, scene_source
 
 DEFAULT_SECONDS = 20.0
@@ -171,10 +173,14 @@ class TrackerRun:
     error: str | None = None
     seconds: float = 0.0
     """Wall time of the tracker's process."""
+    situations: Situations | None = None
+    """How it did from the first frame and on touching pairs (`tools.evaluation.situations`)."""
 
     def to_json(self) -> dict[str, Any]:
+        seen = self.situations
         return {"tracker": self.tracker, "error": self.error, "seconds": round(self.seconds, 2),
-                **({"scores": self.scores.to_json()} if self.scores else {})}  # fmt: skip
+                **({"scores": self.scores.to_json()} if self.scores else {}),
+                **({"situations": seen.to_json()} if seen else {})}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -268,12 +274,27 @@ def prepare_line(plan: Plan, seed: int) -> tuple[LineResult, list[FrameTruth]]:
     return LineResult(seed, plan.source(seed), f"{summary}, {len(seen)} objects", frames), truths
 
 
+def touching_pairs(plan: Plan, seed: int) -> tuple[tuple[str, str], ...]:
+    """The objects of a family line that touch (side by side or nose to tail) with heights
+    `MIN_STEP_M` or more apart, by name, from the line's drawing; none for other scenes."""
+    family = parse_family_name(plan.scene(seed))
+    if family is None:
+        return ()
+    line = draw_line(*family)
+    height = {o.name: o.height_m for o in line.objects}
+    return tuple(
+        (c.a, c.b) for c in line.contacts()
+        if c.kind in ("side", "nose") and abs(height[c.a] - height[c.b]) >= MIN_STEP_M
+    )  # fmt: skip
+
+
 def run_tracker(
     plan: Plan, tracker: str, capture: Path, truths: list[FrameTruth], folder: Path,
-    extra: Sequence[str] = (),
+    extra: Sequence[str] = (), touching: Sequence[tuple[str, str]] = (),
 ) -> TrackerRun:  # fmt: skip
     """One tracker on a recorded line, its outputs in `folder` (`extra`: more arguments to
-    its command), scored both ways; what goes wrong is the run's error, not an exception."""
+    its command), scored both ways and in the two situations (`touching`: the line's
+    touching pairs); what goes wrong is the run's error, not an exception."""
     tracks, masks = folder / f"{tracker}.tracks.jsonl", folder / f"{tracker}.masks.npz"
     start = time.perf_counter()
     try:
@@ -285,7 +306,9 @@ def run_tracker(
         files = read_run(capture, tracks, masks, truths)
         scores = evaluate(files.truths, files.tracks, files.masks, files.rays, plan.gate,
                           plan.min_pixels, plan.min_iou)  # fmt: skip
-        return TrackerRun(tracker, scores, seconds=elapsed)
+        masks_in_order = [files.masks.get(t.sequence) for t in files.truths]
+        seen = situations(files.truths, masks_in_order, touching)
+        return TrackerRun(tracker, scores, seconds=elapsed, situations=seen)
     except Exception as exc:
         return TrackerRun(tracker, None, describe(exc), time.perf_counter() - start)
 
@@ -301,7 +324,10 @@ def run_line(plan: Plan, seed: int) -> LineResult:
         return LineResult(seed, plan.source(seed), error=describe(exc))
     folder = plan.folder / f"seed-{seed}"
     capture = folder / "capture.tofcap"
-    runs = tuple(run_tracker(plan, t, capture, truths, folder) for t in plan.trackers)
+    touching = touching_pairs(plan, seed)
+    runs = tuple(
+        run_tracker(plan, t, capture, truths, folder, touching=touching) for t in plan.trackers
+    )
     return replace(line, runs=runs)
 
 
@@ -387,11 +413,16 @@ class Aggregate:
     by_centroid: FamilyScore | None
     by_iou: FamilyScore | None
     mean_mask_iou: float | None
+    situations: Situations | None = None
+    """Summed over the lines."""
 
     @classmethod
     def of_runs(cls, tracker: str, results: Sequence[LineResult]) -> Aggregate:
-        scores = [s for r in results if (run := r.run(tracker)) and (s := run.scores)]
-        return cls.of_scores(tracker, scores, len(results))
+        runs = [run for r in results if (run := r.run(tracker)) and run.scores]
+        seen = [run.situations for run in runs if run.situations]
+        total = sum(seen[1:], seen[0]) if seen else None
+        scores = [run.scores for run in runs if run.scores]
+        return replace(cls.of_scores(tracker, scores, len(results)), situations=total)
 
     @classmethod
     def of_scores(cls, tracker: str, scores: Sequence[Scores], of: int) -> Aggregate:
@@ -411,6 +442,7 @@ class Aggregate:
             "by_centroid": self.by_centroid.to_json() if self.by_centroid else None,
             "by_iou": self.by_iou.to_json() if self.by_iou else None,
             "mean_mask_iou": self.mean_mask_iou,
+            "situations": self.situations.to_json() if self.situations else None,
         }  # fmt: skip
 
 
@@ -473,6 +505,31 @@ def table(rows: Sequence[Sequence[str]]) -> list[str]:
     return lines + ["| " + " | ".join(r) + " |" for r in rows[1:]]
 
 
+def _share(n: int, of: int) -> str:
+    return f"{n} of {of} ({100 * n / of:.0f}%)" if of else "none in these lines"
+
+
+def situations_section(aggregates: Sequence[Aggregate]) -> list[str]:
+    """The table of the two situations (`tools.evaluation.situations`), summed per tracker."""
+    rows = [
+        [
+            "tracker",
+            "in view from the first frame: held by frame 10 and kept",
+            "touching pairs 4 cm or more apart in height: two tracks 5 frames after whole",
+        ]
+    ]
+    rows += [[a.tracker, _share(s.from_start_held, s.from_start), _share(s.touching_apart,
+              s.touching)] for a in aggregates if (s := a.situations)]  # fmt: skip
+    if len(rows) == 1:
+        return []
+    return ["", "## Two situations", "", *table(rows), "",
+            "Held: matched by mask IoU >= 0.5. From the first frame: every object in view in "
+            "the line's first frame, held by frame 10 and then by that one track wherever it "
+            "shows half its largest view, to its leaving. Touching: each passage of a pair "
+            "that touches side by side or nose to tail, judged 5 frames after both are wholly "
+            "in view (see `tofcut.tools.evaluation.situations`)."]  # fmt: skip
+
+
 def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Aggregate]) -> str:
     """The per-line table, the family table and the failed lines, as Markdown."""
     trackers = plan.trackers
@@ -500,6 +557,7 @@ def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Agg
         fam.append(_difference(aggregates[0], aggregates[1]))
     out += table(fam)
     out += ["", "Each cell: by centroid / by mask IoU; ID switches summed over the lines."]
+    out += situations_section(aggregates)
     out += failure_sections(
         [(f"seed {r.seed} ({r.source})", "; ".join(r.errors)) for r in results if r.errors],
         [(f"seed {r.seed}", r.retried) for r in results if r.retried],
