@@ -203,6 +203,17 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
     assert all(a["lines"] == 2 and a["by_iou"]["median_mota"] <= 1 for a in doc["aggregate"])
     md = (out / "evaluation.md").read_text()
     assert "| tofcut − baseline |" in md
+    # each line's belt noise (the conveyor's belt is near and bright: a few millimetres),
+    # the family split by it, and the two situations summed per tracker
+    assert all(0.001 < line["belt_noise_m"] < 0.02 for line in doc["lines"])
+    assert "| under 2 cm | 2 |" in md
+    for a, line in ((a, doc["lines"][0]) for a in doc["aggregate"]):
+        run = line["runs"][a["tracker"]]["situations"]
+        assert set(run) == {"from_start", "from_start_held", "touching", "touching_apart"}
+        assert a["situations"]["from_start"] == sum(
+            x["runs"][a["tracker"]]["situations"]["from_start"] for x in doc["lines"]
+        )
+    assert "## Two situations" in md
     assert md in printed
     # HOTA, DetA and AssA in both tables, the baseline's too, as the JSON has them
     lines = md.splitlines()

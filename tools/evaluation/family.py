@@ -46,6 +46,7 @@ from tofcut.sim.truth import FrameTruth, load_truth, truth_path
 from tofcut.tools.batch.pool import BatchError, Pool, add_batch_options
 from tofcut.tools.batch.steps import StepFailed, cli, describe, run_step
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
+from tofcut.tools.evaluation.line_noise import BANDS, band, belt_noise
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
 from tofcut.tools.evaluation.situations import MIN_STEP_M, Situations, situations
 from tofcut.tools.pipeline.sources import SourceError, scene_metadata, scene_source
@@ -197,6 +198,8 @@ class LineResult:
     """What stopped the line before any tracker ran (recording it, say)."""
     retried: str | None = None
     """What failed the first time the line ran, when it was run once more."""
+    belt_noise_m: float | None = None
+    """The range noise its belt shows in the first frame (`line_noise.belt_noise`)."""
 
     @property
     def errors(self) -> list[str]:
@@ -211,6 +214,7 @@ class LineResult:
         return {"seed": self.seed, "source": self.source, "scene": self.scene,
                 "frames": self.frames, "error": self.error,
                 "runs": {r.tracker: r.to_json() for r in self.runs},
+                "belt_noise_m": self.belt_noise_m,
                 **({"retried": self.retried} if self.retried else {})}  # fmt: skip
 
 
@@ -271,7 +275,11 @@ def prepare_line(plan: Plan, seed: int) -> tuple[LineResult, list[FrameTruth]]:
     capture = record_line(plan, seed, frames, folder)
     truths = load_truth(truth_path(capture))
     seen = {o.id for t in truths for o in t.objects if o.pixels >= plan.min_pixels}
-    return LineResult(seed, plan.source(seed), f"{summary}, {len(seen)} objects", frames), truths
+    source = scene_source(plan.scene(seed), seed)
+    belt = source.belt if isinstance(source, SceneSource) else None
+    noise = belt_noise(capture, truths[0], belt.geometry) if belt and truths else None
+    line = LineResult(seed, plan.source(seed), f"{summary}, {len(seen)} objects", frames)
+    return replace(line, belt_noise_m=noise), truths
 
 
 def touching_pairs(plan: Plan, seed: int) -> tuple[tuple[str, str], ...]:
@@ -530,6 +538,34 @@ def situations_section(aggregates: Sequence[Aggregate]) -> list[str]:
             "in view (see `tofcut.tools.evaluation.situations`)."]  # fmt: skip
 
 
+def noise_section(trackers: Sequence[str], results: Sequence[LineResult]) -> list[str]:
+    """The family's scores split by how loud each line's belt is (`line_noise`)."""
+    head = ["belt's range noise", "lines"]
+    for t in trackers:
+        head += [f"{t} median MOTA", f"{t} median IDF1", f"{t} mean mask IoU"]
+    rows = [head]
+    for name, _, _ in BANDS:
+        lines = [r for r in results if band(r.belt_noise_m) == name]
+        if not lines:
+            continue
+        row = [name, str(len(lines))]
+        for t in trackers:
+            a = Aggregate.of_runs(t, lines)
+            fc, fi = a.by_centroid, a.by_iou
+            row += (
+                [_pair(fc.median_mota, fi.median_mota), _pair(fc.median_idf1, fi.median_idf1),
+                 f"{a.mean_mask_iou:.3f}"]
+                if fc and fi and a.mean_mask_iou is not None else ["—"] * 3
+            )  # fmt: skip
+        rows.append(row)
+    if len(rows) == 1:
+        return []
+    return ["", "## By the belt's range noise", "", *table(rows), "",
+            "The median range noise over the pixels that show the bare belt in each line's "
+            "first frame, as the tracker estimates it; each cell by centroid / by mask "
+            "IoU."]  # fmt: skip
+
+
 def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Aggregate]) -> str:
     """The per-line table, the family table and the failed lines, as Markdown."""
     trackers = plan.trackers
@@ -558,6 +594,7 @@ def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Agg
     out += table(fam)
     out += ["", "Each cell: by centroid / by mask IoU; ID switches summed over the lines."]
     out += situations_section(aggregates)
+    out += noise_section(trackers, results)
     out += failure_sections(
         [(f"seed {r.seed} ({r.source})", "; ".join(r.errors)) for r in results if r.errors],
         [(f"seed {r.seed}", r.retried) for r in results if r.retried],
