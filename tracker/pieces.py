@@ -52,12 +52,12 @@ class Pieces:
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> I32:
         """Pieces of surface that stand out of the scenery and no track took (0 in `labels`),
-        numbered from 1."""
+        numbered from 1; `seen`: the frame's `BackgroundModel.seen_range`."""
         bg = background
         q = bg.params
-        seen = bg.seen_range(frame)
         body = background_kernels.standing_out(
             bg.range, bg.sigma, bg.known, seen, frame.valid, labels, q.noise_factor,
             q.min_height_m,

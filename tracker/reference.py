@@ -75,10 +75,18 @@ def _replacing(base: type) -> Callable[[type[T]], type[T]]:
 class ReferenceBackground(BackgroundModel):
     """The empty-scene model following the scene in plain numpy."""
 
-    def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
+    def update(
+        self,
+        frame: Frame,
+        free: B,
+        noise: F64,
+        occupied: F64,
+        reach: float,
+        seen: F64 | None = None,
+    ) -> None:
         p = self.params
         usable = free & frame.valid
-        seen = self.seen_range(frame)
+        seen = self.seen_range(frame) if seen is None else seen
         with np.errstate(invalid="ignore"):
             deviation = seen - self.range
             farther = frame.valid & (deviation > p.noise_factor * self.sigma)
@@ -113,7 +121,12 @@ class ReferenceCut(JointCut):
     purpose (the same signatures, the same order), in the numpy the tests hold it to."""
 
     def labels(
-        self, frame: Frame, noise: F64, tracks: list[LiveTrack], background: BackgroundModel
+        self,
+        frame: Frame,
+        noise: F64,
+        tracks: list[LiveTrack],
+        background: BackgroundModel,
+        seen: F64,
     ) -> U16:
         p = self.params
         h, w = frame.shape
@@ -121,7 +134,7 @@ class ReferenceCut(JointCut):
         if not tracks:
             return labels
         valid = frame.valid
-        u0 = self.background_cost(frame, background)
+        u0 = self.background_cost(frame, background, seen)
         u0[~valid] = 0.0
         ties, total = _ties(frame, p)
         free = valid & (p.object_cost - u0 <= total)
@@ -179,12 +192,12 @@ class ReferenceCut(JointCut):
                 out[k] += p.surface_weight * (near / spread) ** 2
         return np.where(np.isnan(out), np.inf, out)
 
-    def background_cost(self, frame: Frame, background: BackgroundModel) -> F64:
+    def background_cost(self, frame: Frame, background: BackgroundModel, seen: F64) -> F64:
         p = self.params
         bg = background
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame)
+        nearer, sigma = bg.weighed_nearness(frame, seen)
         z = np.maximum(nearer / sigma - p.deadband, 0.0)
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
@@ -202,11 +215,12 @@ class ReferencePieces(Pieces):
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> I32:
         bg = background
         usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
-        body |= standing_regions(bg.range, bg.sigma, usable, bg.seen_range(frame), bg.params)
+        body |= standing_regions(bg.range, bg.sigma, usable, seen, bg.params)
         if self.params.rigid and belt is not None:
             body &= on_belt_height(frame.xyz, belt)
         return self.split(frame, body, noise, belt)

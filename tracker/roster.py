@@ -179,16 +179,20 @@ class Roster:
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> Measured:
         """Update every track from its mask in `labels` (`dt` seconds since the last frame),
-        and look for new objects. Changes `labels`."""
+        and look for new objects (`seen`: the frame's `BackgroundModel.seen_range`). Changes
+        `labels`."""
         p = self.params
         ended: list[int] = []
         keep: list[LiveTrack] = []
         born = self._reconcile(frame, labels, noise, belt)
         ended += self._join(frame, labels, noise, belt)
         pieces = (
-            self.pieces.loose(frame, labels, noise, background, belt) if background.ready else None
+            self.pieces.loose(frame, labels, noise, background, belt, seen)
+            if background.ready
+            else None
         )
         # across a 3D step, what stands out lies past the seam the step leaves
         seam = 1 if p.rigid else 2
@@ -221,11 +225,11 @@ class Roster:
                         frame, whole_mask, pieces, touching[t.id], piece_boxes
                     )
                     if beside.size:
-                        seen = whole_mask | np.isin(pieces, beside)
-                        pieces[seen] = 0
-                        labels[seen] = t.id
-                        box = _box_of(seen)
-                        pts = frame.xyz[seen]
+                        grown = whole_mask | np.isin(pieces, beside)
+                        pieces[grown] = 0
+                        labels[grown] = t.id
+                        box = _box_of(grown)
+                        pts = frame.xyz[grown]
                 t.see(pts, box, entering, belt)
             else:
                 if box is not None:

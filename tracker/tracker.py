@@ -109,19 +109,24 @@ class Tracker:
             t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
+        # the frame's ranges as the scenery is compared with, once for the frame
+        seen = self.background.seen_range(frame) if ready else frame.range
         labels = (
-            self.cut.labels(frame, noise, self.roster.tracks, self.background)
+            self.cut.labels(frame, noise, self.roster.tracks, self.background, seen)
             if ready
             else self.roster.grown(frame)
         )
-        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt)
+        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt, seen)
         born += measured.born
         ended = list(measured.ended)
         if ready and prior is not None:
-            ended += self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+            still = self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+            if still:  # the scenery took them in: its ranges changed
+                seen = self.background.seen_range(frame)
+            ended += still
         occupied = self.roster.points()
         if ready:
-            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m)
+            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m, seen)
         else:
             self.background.learn(frame, noise, occupied, p.keep_clear_m)
         if not self._belt_laid and self.background.ready and self.belt is not None:
