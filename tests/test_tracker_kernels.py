@@ -234,6 +234,24 @@ def test_point_stats_are_numpys_mean_min_and_max():
     np.testing.assert_array_equal(hi, points.max(axis=0))
 
 
+def test_touching_pairs_are_the_pieces_under_each_dilated_mask():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(10)
+    for _ in range(100):
+        h, w = rng.integers(1, 30, 2)
+        labels = (rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.3)).astype(np.uint16)
+        pieces = (rng.integers(0, 6, (h, w)) * (rng.random((h, w)) < 0.3)).astype(np.int32)
+        reach = int(rng.integers(1, 3))
+        pairs = measure_kernels.touching_pairs(labels, pieces, reach)
+        got = {(int(p >> 32), int(p & 0xFFFFFFFF)) for p in pairs}
+        want = set()
+        for lab in range(1, 4):
+            near = ndimage.binary_dilation(labels == lab, np.ones((3, 3), bool), reach)
+            want |= {(lab, int(r)) for r in np.unique(pieces[near]) if r > 0}
+        assert got == want
+
+
 def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
     rng = np.random.default_rng(9)
     for _ in range(50):

@@ -86,3 +86,28 @@ def held_pieces(
         for u in range(w):
             out[row[labels[v, u]], pieces[v, u]] += 1
     return out
+
+
+@kernel((U16_2D, I32_2D, 1))
+def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
+    """Every (label, piece) pair, both > 0, of a pixel of `labels` and one of `pieces` at most
+    `reach` pixels from it across and down (an 8-connected `reach`-step dilation), each as
+    label << 32 | piece, in no order and with repeats."""
+    h, w = labels.shape
+    out = np.empty(64, np.int64)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            lab = labels[v, u]
+            if lab == 0:
+                continue
+            for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
+                for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
+                    r = pieces[v2, u2]
+                    if r <= 0:
+                        continue
+                    if n == out.size:
+                        out = np.concatenate((out, np.empty(out.size, np.int64)))
+                    out[n] = np.int64(lab) << 32 | np.int64(r)
+                    n += 1
+    return out[:n]
