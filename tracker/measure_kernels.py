@@ -92,22 +92,26 @@ def held_pieces(
 def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
     """Every (label, piece) pair, both > 0, of a pixel of `labels` and one of `pieces` at most
     `reach` pixels from it across and down (an 8-connected `reach`-step dilation), each as
-    label << 32 | piece, in no order and with repeats."""
+    label << 32 | piece, in no order and with repeats. From the pieces' pixels, which are
+    few beside the tracks' (they stand out and no track took them): one pass to count the
+    pairs, one to write them."""
     h, w = labels.shape
-    out = np.empty(64, np.int64)
-    n = 0
-    for v in range(h):
-        for u in range(w):
-            lab = labels[v, u]
-            if lab == 0:
-                continue
-            for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
-                for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
-                    r = pieces[v2, u2]
-                    if r <= 0:
-                        continue
-                    if n == out.size:
-                        out = np.concatenate((out, np.empty(out.size, np.int64)))
-                    out[n] = np.int64(lab) << 32 | np.int64(r)
-                    n += 1
-    return out[:n]
+    out = np.empty(0, np.int64)
+    for write in (False, True):
+        n = 0
+        for v in range(h):
+            for u in range(w):
+                r = pieces[v, u]
+                if r <= 0:
+                    continue
+                for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
+                    for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
+                        lab = labels[v2, u2]
+                        if lab == 0:
+                            continue
+                        if write:
+                            out[n] = np.int64(lab) << 32 | np.int64(r)
+                        n += 1
+        if not write:
+            out = np.empty(n, np.int64)
+    return out
