@@ -112,11 +112,9 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     if not loud.any():
         return Quietened(frame.xyz, frame.range, noise)
     rng = stats_kernels.median3_within(frame.range, body, loud)
-    moved = loud & (frame.range != 0)
-    xyz = frame.xyz.copy()
-    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
-    quiet = noise.copy()
-    quiet[loud] *= MEDIAN_NOISE_SHARE
+    xyz, quiet = pieces_kernels.quieten(
+        frame.xyz, frame.range, rng, noise, loud, MEDIAN_NOISE_SHARE
+    )
     return Quietened(xyz, rng, quiet)
 
 

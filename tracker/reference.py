@@ -19,9 +19,11 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
+from tofcut.tracker import stats_kernels
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
     BLEND_VARIANCE_SHARE,
+    MEDIAN_NOISE_SHARE,
     BackgroundModel,
     near_any,
     on_belt_height,
@@ -33,7 +35,7 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
 from tofcut.tracker.noise import FIT_STRIDE
 from tofcut.tracker.params import TrackerParams
-from tofcut.tracker.pieces import Pieces, quietened
+from tofcut.tracker.pieces import Pieces, Quietened
 from tofcut.tracker.stats import MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker
 
@@ -314,3 +316,17 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
+
+
+def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
+    """`tofcut.tracker.pieces.quietened` in plain numpy."""
+    loud = body & (noise * 3.0 >= step_m)
+    if not loud.any():
+        return Quietened(frame.xyz, frame.range, noise)
+    rng = stats_kernels.median3_within(frame.range, body, loud)
+    moved = loud & (frame.range != 0)
+    xyz = frame.xyz.copy()
+    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
+    quiet = noise.copy()
+    quiet[loud] *= MEDIAN_NOISE_SHARE
+    return Quietened(xyz, rng, quiet)
