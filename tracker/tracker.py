@@ -29,7 +29,7 @@ import numpy as np
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import compiled
+from tofcut.tracker import compiled, frame_kernels
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
@@ -149,9 +149,9 @@ def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
         raise SegmentError(f"a {w}x{h} frame in a run of {shape[1]}x{shape[0]} frames")
     if frame.range.shape != (h, w) or frame.valid.shape != (h, w) or frame.xyz.shape != (h, w, 3):
         raise SegmentError("the frame's range, valid mask and points differ in shape")
-    finite = np.isfinite(frame.range) & np.isfinite(frame.xyz).all(axis=-1)
-    if finite.all():
+    if frame_kernels.all_finite(frame.range, frame.xyz):
         return frame
+    finite = np.isfinite(frame.range) & np.isfinite(frame.xyz).all(axis=-1)
     # a point the cut may still hand to a track (an invalid pixel inside an object) must
     # not carry a NaN into its cloud: such pixels read 0
     rng = np.where(finite, frame.range, 0.0)
