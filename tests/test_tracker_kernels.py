@@ -252,6 +252,35 @@ def test_touching_pairs_are_the_pieces_under_each_dilated_mask():
         assert got == want
 
 
+def test_3x3_medians_are_scipys_and_a_nan_is_placed_as_an_insertion_sort_places_it():
+    from scipy import ndimage
+
+    def inserted(values):  # the insertion sort median3_at falls back on where a nan is
+        window = []
+        for x in values:
+            k = len(window)
+            window.append(x)
+            while k > 0 and window[k - 1] > x:
+                window[k] = window[k - 1]
+                k -= 1
+            window[k] = x
+        return window[4]
+
+    rng = np.random.default_rng(11)
+    for i in range(200):
+        h, w = rng.integers(1, 20, 2)
+        values = rng.integers(0, 4, (h, w)).astype(float) if i % 2 else rng.normal(size=(h, w))
+        where = rng.random((h, w)) < 0.7
+        want = np.where(where, ndimage.median_filter(values, 3, mode="nearest"), values)
+        np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
+        values[rng.random((h, w)) < 0.1] = np.nan
+        padded = np.pad(values, 1, mode="edge")
+        want = values.copy()
+        for v, u in zip(*np.nonzero(where), strict=True):
+            want[v, u] = inserted(padded[v : v + 3, u : u + 3].ravel().tolist())
+        np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
+
+
 def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
     rng = np.random.default_rng(9)
     for _ in range(50):
