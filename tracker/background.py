@@ -228,20 +228,20 @@ class BackgroundModel:
         otherwise widen it, until none stood out of it). What stood there when the belt was
         laid (a rail, a guide), or was taken in by `absorb` since, stays; a pixel learned
         only since goes back to the belt's surface."""
+        self._find_held_surface(frame, belt)
+        background_kernels.hold_belt(
+            self.range, self.sigma, self.known, self._held_surface, self._cleared_range, noise,
+            self.params.min_sigma_m, self.params.min_height_m,
+        )  # fmt: skip
+
+    def _find_held_surface(self, frame: Frame, belt: BeltGeometry) -> None:
+        """The belt's surface along each pixel's ray, for `hold_belt`: found once per belt
+        (again while it is nowhere)."""
         if belt is not self._held_for or np.isnan(self._held_surface).all():
             with np.errstate(invalid="ignore", divide="ignore"):
                 surface = belt.range_along(frame.xyz / frame.range[..., None])
             self._held_for = belt
             self._held_surface = np.where(np.isfinite(surface), surface, np.nan)
-        p = self.params
-        over = self.known & np.isfinite(self._held_surface)
-        then = np.where(np.isnan(self._cleared_range), self._held_surface, self._cleared_range)
-        cap = np.maximum(noise, p.min_sigma_m)
-        with np.errstate(invalid="ignore"):
-            loud = over & (self.sigma > cap)
-            self.sigma[loud] = cap[loud]
-            came = over & (then - self.range > np.maximum(3.0 * self.sigma, p.min_height_m))
-        self.range[came] = then[came]
 
     def absorb(self, frame: Frame, where: B, noise: F64) -> None:
         """Take what is seen in `where` as scenery from now on (something that stays put)."""

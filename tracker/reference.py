@@ -116,6 +116,18 @@ class ReferenceBackground(BackgroundModel):
         self._unknown_seen[newly] = 0
         self.known |= newly
 
+    def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
+        self._find_held_surface(frame, belt)
+        p = self.params
+        over = self.known & np.isfinite(self._held_surface)
+        then = np.where(np.isnan(self._cleared_range), self._held_surface, self._cleared_range)
+        cap = np.maximum(noise, p.min_sigma_m)
+        with np.errstate(invalid="ignore"):
+            loud = over & (self.sigma > cap)
+            self.sigma[loud] = cap[loud]
+            came = over & (then - self.range > np.maximum(3.0 * self.sigma, p.min_height_m))
+        self.range[came] = then[came]
+
 
 @_replacing(JointCut)
 class ReferenceCut(JointCut):
