@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import F64, I32, I64, U16
-from tofcut.tracker.compiled import F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
+from tofcut._types import F64, I32, I64, U16, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
 
 
 @kernel((U16_2D, F64_3D, I64_1D))
@@ -115,3 +115,36 @@ def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
         if not write:
             out = np.empty(n, np.int64)
     return out
+
+
+@kernel((B_2D, 1, 1, I32_2D, 1, 1, 1, 1, 1, F64_3D))
+def seam_steps(
+    mask: B, top: int, left: int, pieces: I32, r: int,
+    r0: int, r1: int, c0: int, c1: int, xyz: F64,
+) -> tuple[F64, int]:  # fmt: skip
+    """(M, 3) `xyz[p] − xyz[q]` of each pair of neighbours p, q (q right of or below p) in
+    rows r0:r1 and columns c0:c1 of which one is in `mask` (a mask whose first pixel is the
+    frame's (top, left)) and the other in piece `r` of `pieces`: first the pairs across,
+    then those down, each in row-major order of p; and how many are across."""
+    mh, mw = mask.shape
+    out = np.empty((0, 3))
+    across = 0
+    for write in (False, True):
+        n = 0
+        for dv, du in ((0, 1), (1, 0)):
+            if dv:
+                across = n
+            for v in range(r0, r1 - dv):
+                for u in range(c0, c1 - du):
+                    v2, u2 = v + dv, u + du
+                    a1 = 0 <= v - top < mh and 0 <= u - left < mw and mask[v - top, u - left]
+                    a2 = 0 <= v2 - top < mh and 0 <= u2 - left < mw and mask[v2 - top, u2 - left]
+                    if not ((a1 and pieces[v2, u2] == r) or (a2 and pieces[v, u] == r)):
+                        continue
+                    if write:
+                        for k in range(3):
+                            out[n, k] = xyz[v, u, k] - xyz[v2, u2, k]
+                    n += 1
+        if not write:
+            out = np.empty((n, 3))
+    return out, across

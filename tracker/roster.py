@@ -27,7 +27,7 @@ from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
-from tofcut.tracker.neighbours import EIGHT, pair_slices
+from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
 from tofcut.tracker.tops import facing_up, one_object
@@ -442,19 +442,17 @@ def _joined_share(
     by side (the piece within `box`), the share whose 3D points are within `step_m` of each
     other (0 where they do not meet)."""
     h, w = pieces.shape
-    win = (
-        slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h)),
-        slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w)),
-    )
-    pa, pb, pts = _placed(a, a_box, win), pieces[win] == r, xyz[win]
-    meet = joined = 0
-    for k in (0, 1):  # right, down
-        one, other = pair_slices(pa.shape, k)
-        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
-        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
-        meet += gap.size
-        joined += int(np.count_nonzero(gap <= step_m))
-    return joined / meet if meet else 0.0
+    steps, across = measure_kernels.seam_steps(
+        a, a_box[0].start, a_box[1].start, pieces, r,
+        max(box[0].start - 1, 0), min(box[0].stop + 1, h),
+        max(box[1].start - 1, 0), min(box[1].stop + 1, w), xyz,
+    )  # fmt: skip
+    if not len(steps):
+        return 0.0
+    joined = 0
+    for part in (steps[:across], steps[across:]):  # as apart as numpy has them
+        joined += int(np.count_nonzero(np.linalg.norm(part, axis=-1) <= step_m))
+    return joined / len(steps)
 
 
 def _placed(mask: B, box: Box, win: Box) -> B:
