@@ -281,30 +281,41 @@ def test_3x3_medians_are_scipys_and_a_nan_is_placed_as_an_insertion_sort_places_
         np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
 
 
-def test_seam_steps_are_the_numpy_forms_pairs():
+def test_seams_are_counted_as_the_numpy_form_counts_them():
     from tofcut.tracker.neighbours import pair_slices
 
     rng = np.random.default_rng(12)
     for _ in range(100):
         h, w = rng.integers(2, 25, 2)
-        xyz = rng.normal(size=(h, w, 3))
+        xyz = rng.normal(size=(h, w, 3)) * 0.01
         pieces = rng.integers(0, 3, (h, w)).astype(np.int32)
         top, left = int(rng.integers(0, h)), int(rng.integers(0, w))
         mask = rng.random((int(rng.integers(1, h - top + 1)), int(rng.integers(1, w - left + 1))))
         mask = mask < 0.5
         whole = np.zeros((h, w), bool)
         whole[top : top + mask.shape[0], left : left + mask.shape[1]] = mask
-        r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
-        r1, c1 = int(rng.integers(r0 + 1, h + 1)), int(rng.integers(c0 + 1, w + 1))
-        a, b, pts = whole[r0:r1, c0:c1], pieces[r0:r1, c0:c1] == 2, xyz[r0:r1, c0:c1]
+        near = np.array([1, 2], np.int64)
+        corners = np.zeros((2, 4), np.int64)
         want = []
-        for k in (0, 1):
-            one, other = pair_slices(a.shape, k)
-            pairs = (a[one] & b[other]) | (b[one] & a[other])
-            want.append(pts[one][pairs] - pts[other][pairs])
-        steps, across = measure_kernels.seam_steps(mask, top, left, pieces, 2, r0, r1, c0, c1, xyz)
-        np.testing.assert_array_equal(steps, np.concatenate(want))
-        assert across == len(want[0])
+        for k, r in enumerate(near):
+            r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+            r1, c1 = int(rng.integers(r0 + 1, h + 1)), int(rng.integers(c0 + 1, w + 1))
+            corners[k] = r0, r1, c0, c1
+            rows = slice(max(r0 - 1, 0), min(r1 + 1, h))
+            cols = slice(max(c0 - 1, 0), min(c1 + 1, w))
+            a, b, pts = whole[rows, cols], pieces[rows, cols] == r, xyz[rows, cols]
+            meet = joined = 0
+            for d in (0, 1):  # as `Roster._continuing` counted them in numpy
+                one, other = pair_slices(a.shape, d)
+                pairs = (a[one] & b[other]) | (b[one] & a[other])
+                gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
+                meet += gap.size
+                joined += int(np.count_nonzero(gap <= 0.01))
+            want.append((np.count_nonzero(pieces[r0:r1, c0:c1] == r), meet, joined))
+        sizes, meet, joined = measure_kernels.seams(
+            mask, top, left, pieces, near, corners, xyz, 0.01
+        )
+        assert list(zip(sizes, meet, joined, strict=True)) == want
 
 
 def test_cut_at_steps_leaves_out_what_the_numpy_form_does():

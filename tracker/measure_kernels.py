@@ -4,10 +4,12 @@ box and points, their mean and extent, and how many pixels of each piece each tr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from tofcut._types import F64, I32, I64, U16, B
-from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, I64_1D, I64_2D, U16_2D, kernel
 
 
 @kernel((U16_2D, F64_3D, I64_1D))
@@ -117,23 +119,30 @@ def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
     return out
 
 
-@kernel((B_2D, 1, 1, I32_2D, 1, 1, 1, 1, 1, F64_3D))
-def seam_steps(
-    mask: B, top: int, left: int, pieces: I32, r: int,
-    r0: int, r1: int, c0: int, c1: int, xyz: F64,
-) -> tuple[F64, int]:  # fmt: skip
-    """(M, 3) `xyz[p] − xyz[q]` of each pair of neighbours p, q (q right of or below p) in
-    rows r0:r1 and columns c0:c1 of which one is in `mask` (a mask whose first pixel is the
-    frame's (top, left)) and the other in piece `r` of `pieces`: first the pairs across,
-    then those down, each in row-major order of p; and how many are across."""
+@kernel((B_2D, 1, 1, I32_2D, I64_1D, I64_2D, F64_3D, 1.0))
+def seams(
+    mask: B, top: int, left: int, pieces: I32, near: I64, boxes: I64, xyz: F64,
+    step_m: float,
+) -> tuple[I64, I64, I64]:  # fmt: skip
+    """For each piece `near[k]` of `pieces`, within its box `boxes[k]` (first row, row past
+    the last, first column, column past the last): its pixels there; and of the pairs of
+    side-by-side pixels (across or down) in that box grown by one of which one is in `mask`
+    (a mask whose first pixel is the frame's (top, left)) and the other in the piece, how
+    many, and how many of them have 3D points within `step_m` of each other (numpy's
+    `norm`: the square root of the squares summed in order x, y, z)."""
+    h, w = pieces.shape
     mh, mw = mask.shape
-    out = np.empty((0, 3))
-    across = 0
-    for write in (False, True):
-        n = 0
+    sizes = np.zeros(near.size, np.int64)
+    meet = np.zeros(near.size, np.int64)
+    joined = np.zeros(near.size, np.int64)
+    for k in range(near.size):
+        r = near[k]
+        for v in range(boxes[k, 0], boxes[k, 1]):
+            for u in range(boxes[k, 2], boxes[k, 3]):
+                sizes[k] += pieces[v, u] == r
+        r0, r1 = max(boxes[k, 0] - 1, 0), min(boxes[k, 1] + 1, h)
+        c0, c1 = max(boxes[k, 2] - 1, 0), min(boxes[k, 3] + 1, w)
         for dv, du in ((0, 1), (1, 0)):
-            if dv:
-                across = n
             for v in range(r0, r1 - dv):
                 for u in range(c0, c1 - du):
                     v2, u2 = v + dv, u + du
@@ -141,10 +150,9 @@ def seam_steps(
                     a2 = 0 <= v2 - top < mh and 0 <= u2 - left < mw and mask[v2 - top, u2 - left]
                     if not ((a1 and pieces[v2, u2] == r) or (a2 and pieces[v, u] == r)):
                         continue
-                    if write:
-                        for k in range(3):
-                            out[n, k] = xyz[v, u, k] - xyz[v2, u2, k]
-                    n += 1
-        if not write:
-            out = np.empty((n, 3))
-    return out, across
+                    x = xyz[v, u, 0] - xyz[v2, u2, 0]
+                    y = xyz[v, u, 1] - xyz[v2, u2, 1]
+                    z = xyz[v, u, 2] - xyz[v2, u2, 2]
+                    meet[k] += 1
+                    joined[k] += math.sqrt(x * x + y * y + z * z) <= step_m
+    return sizes, meet, joined

@@ -350,18 +350,21 @@ class Roster:
         object (pieces smaller than MIN_PIECE are noise): for rigid targets, those that go on
         from the mask's surface without a 3D step (`joined_m`); for targets that bend, all (a
         limb). `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
+        corners = np.zeros((near.size, 4), np.int64)
+        for k, r in enumerate(near.tolist()):
+            rows, cols = piece_boxes[r - 1] or (slice(0, 0), slice(0, 0))
+            corners[k] = rows.start, rows.stop, cols.start, cols.stop
+        sizes, meet, joined = measure_kernels.seams(
+            mask, box[0].start, box[1].start, pieces, near.astype(np.int64), corners, frame.xyz,
+            self.params.joined_m,
+        )  # fmt: skip
         keep = []
-        for r in near.tolist():
-            piece_box = piece_boxes[r - 1]
-            assert piece_box is not None
-            if np.count_nonzero(pieces[piece_box] == r) < MIN_PIECE:
+        for k, r in enumerate(near.tolist()):
+            if sizes[k] < MIN_PIECE:
                 continue
-            if self.params.rigid:
-                share = _joined_share(
-                    frame.xyz, mask, box, pieces, r, piece_box, self.params.joined_m
-                )
-                if share < 0.5:
-                    continue
+            # for rigid targets: most of the seam without a step
+            if self.params.rigid and not (meet[k] and joined[k] / meet[k] >= 0.5):
+                continue
             keep.append(r)
         return np.array(keep, np.int32)
 
@@ -433,26 +436,6 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
     dist[~frame.valid] = np.inf
     v, u = np.unravel_index(int(np.argmin(dist)), dist.shape)
     return int(v), int(u)
-
-
-def _joined_share(
-    xyz: F64, a: B, a_box: Box, pieces: I32, r: int, box: Box, step_m: float
-) -> float:
-    """Of the pixel pairs where the mask `a` (within `a_box`) meets piece `r` of `pieces` side
-    by side (the piece within `box`), the share whose 3D points are within `step_m` of each
-    other (0 where they do not meet)."""
-    h, w = pieces.shape
-    steps, across = measure_kernels.seam_steps(
-        a, a_box[0].start, a_box[1].start, pieces, r,
-        max(box[0].start - 1, 0), min(box[0].stop + 1, h),
-        max(box[1].start - 1, 0), min(box[1].stop + 1, w), xyz,
-    )  # fmt: skip
-    if not len(steps):
-        return 0.0
-    joined = 0
-    for part in (steps[:across], steps[across:]):  # as apart as numpy has them
-        joined += int(np.count_nonzero(np.linalg.norm(part, axis=-1) <= step_m))
-    return joined / len(steps)
 
 
 def _placed(mask: B, box: Box, win: Box) -> B:
