@@ -214,7 +214,9 @@ class Roster:
                     if beside.size:
                         # all of it lies within its box and those of the pieces it takes
                         win = _union([box] + [piece_boxes[r - 1] for r in beside.tolist()])
-                        grown = np.isin(pieces[win], beside) | _placed(mask, box, win)
+                        taken = np.zeros(len(piece_boxes) + 1, bool)  # by piece
+                        taken[beside] = True
+                        grown = taken[pieces[win]] | _placed(mask, box, win)
                         pieces[win][grown] = 0
                         labels[win][grown] = t.id
                         box = _shifted(_box_of(grown), win)
@@ -302,8 +304,9 @@ class Roster:
             held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
         )
         splitting = []
+        many = big.sum(axis=1) >= 2
         for k, t in enumerate(self.tracks):
-            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
+            two = bool(many[k]) and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
             t.split_frames = t.split_frames + 1 if two else 0
             if t.split_frames >= p.split_frames:
                 splitting.append(k)
