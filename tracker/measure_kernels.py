@@ -91,14 +91,15 @@ def held_pieces(
 
 
 @kernel((U16_2D, I32_2D, 1))
-def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
-    """Every (label, piece) pair, both > 0, of a pixel of `labels` and one of `pieces` at most
-    `reach` pixels from it across and down (an 8-connected `reach`-step dilation), each as
-    label << 32 | piece, in no order and with repeats. From the pieces' pixels, which are
-    few beside the tracks' (they stand out and no track took them): one pass to count the
-    pairs, one to write them."""
+def touching(labels: U16, pieces: I32, reach: int) -> tuple[I64, I64, I32]:
+    """Per label > 0 of `labels`, the pieces > 0 of `pieces` with a pixel at most `reach`
+    pixels from one of its pixels across and down (an 8-connected `reach`-step dilation):
+    the labels that have some, ascending, where each one's start in the pieces (and, last,
+    where the last ends), and the pieces, ascending for each label. From the pieces' pixels,
+    which are few beside the tracks' (they stand out and no track took them): one pass to
+    count the pairs, one to write them."""
     h, w = labels.shape
-    out = np.empty(0, np.int64)
+    pairs = np.empty(0, np.int64)
     for write in (False, True):
         n = 0
         for v in range(h):
@@ -112,11 +113,21 @@ def touching_pairs(labels: U16, pieces: I32, reach: int) -> I64:
                         if lab == 0:
                             continue
                         if write:
-                            out[n] = np.int64(lab) << 32 | np.int64(r)
+                            pairs[n] = np.int64(lab) << 32 | np.int64(r)
                         n += 1
         if not write:
-            out = np.empty(n, np.int64)
-    return out
+            pairs = np.empty(n, np.int64)
+    pairs = np.unique(pairs)
+    ids = np.empty(pairs.size, np.int64)
+    starts = np.empty(pairs.size + 1, np.int64)
+    k = 0
+    for n in range(pairs.size):
+        if n == 0 or pairs[n] >> 32 != pairs[n - 1] >> 32:
+            ids[k] = pairs[n] >> 32
+            starts[k] = n
+            k += 1
+    starts[k] = pairs.size
+    return ids[:k].copy(), starts[: k + 1].copy(), (pairs & 0xFFFFFFFF).astype(np.int32)
 
 
 @kernel((B_2D, 1, 1, I32_2D, I64_1D, I64_2D, F64_3D, 1.0))

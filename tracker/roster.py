@@ -74,13 +74,9 @@ def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
 def _touching_pieces(labels: U16, pieces: I32, reach: int) -> dict[int, I32]:
     """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
     its mask: `pieces[binary_dilation(labels == id, EIGHT, reach)]`, for all tracks at
-    once (`measure_kernels.touching_pairs`)."""
-    pairs = np.unique(measure_kernels.touching_pairs(labels, pieces, reach))
-    if not pairs.size:
-        return {}
-    ids, rows = np.unique(pairs >> 32, return_index=True)
-    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
-    return dict(zip(ids.tolist(), groups, strict=True))
+    once (`measure_kernels.touching`)."""
+    ids, starts, near = measure_kernels.touching(labels, pieces, reach)
+    return {i: near[starts[k] : starts[k + 1]] for k, i in enumerate(ids.tolist())}
 
 
 class Roster:
