@@ -234,6 +234,92 @@ def test_point_stats_are_numpys_mean_min_and_max():
     np.testing.assert_array_equal(hi, points.max(axis=0))
 
 
+def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
+    from scipy import ndimage
+
+    rng = np.random.default_rng(10)
+    for _ in range(100):
+        h, w = rng.integers(1, 30, 2)
+        labels = (rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.3)).astype(np.uint16)
+        pieces = (rng.integers(0, 6, (h, w)) * (rng.random((h, w)) < 0.3)).astype(np.int32)
+        reach = int(rng.integers(1, 3))
+        ids, starts, near = measure_kernels.touching(labels, pieces, reach)
+        got = {i: near[starts[k] : starts[k + 1]].tolist() for k, i in enumerate(ids.tolist())}
+        want = {}
+        for lab in range(1, 4):
+            around = ndimage.binary_dilation(labels == lab, np.ones((3, 3), bool), reach)
+            found = [int(r) for r in np.unique(pieces[around]) if r > 0]
+            if found:
+                want[lab] = found
+        assert got == want
+
+
+def test_3x3_medians_are_scipys_and_a_nan_is_placed_as_an_insertion_sort_places_it():
+    from scipy import ndimage
+
+    def inserted(values):  # the insertion sort median3_at falls back on where a nan is
+        window = []
+        for x in values:
+            k = len(window)
+            window.append(x)
+            while k > 0 and window[k - 1] > x:
+                window[k] = window[k - 1]
+                k -= 1
+            window[k] = x
+        return window[4]
+
+    rng = np.random.default_rng(11)
+    for i in range(200):
+        h, w = rng.integers(1, 20, 2)
+        values = rng.integers(0, 4, (h, w)).astype(float) if i % 2 else rng.normal(size=(h, w))
+        where = rng.random((h, w)) < 0.7
+        want = np.where(where, ndimage.median_filter(values, 3, mode="nearest"), values)
+        np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
+        values[rng.random((h, w)) < 0.1] = np.nan
+        padded = np.pad(values, 1, mode="edge")
+        want = values.copy()
+        for v, u in zip(*np.nonzero(where), strict=True):
+            want[v, u] = inserted(padded[v : v + 3, u : u + 3].ravel().tolist())
+        np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
+
+
+def test_seams_are_counted_as_the_numpy_form_counts_them():
+    from tofcut.tracker.neighbours import pair_slices
+
+    rng = np.random.default_rng(12)
+    for _ in range(100):
+        h, w = rng.integers(2, 25, 2)
+        xyz = rng.normal(size=(h, w, 3)) * 0.01
+        pieces = rng.integers(0, 3, (h, w)).astype(np.int32)
+        top, left = int(rng.integers(0, h)), int(rng.integers(0, w))
+        mask = rng.random((int(rng.integers(1, h - top + 1)), int(rng.integers(1, w - left + 1))))
+        mask = mask < 0.5
+        whole = np.zeros((h, w), bool)
+        whole[top : top + mask.shape[0], left : left + mask.shape[1]] = mask
+        near = np.array([1, 2], np.int64)
+        corners = np.zeros((2, 4), np.int64)
+        want = []
+        for k, r in enumerate(near):
+            r0, c0 = int(rng.integers(0, h)), int(rng.integers(0, w))
+            r1, c1 = int(rng.integers(r0 + 1, h + 1)), int(rng.integers(c0 + 1, w + 1))
+            corners[k] = r0, r1, c0, c1
+            rows = slice(max(r0 - 1, 0), min(r1 + 1, h))
+            cols = slice(max(c0 - 1, 0), min(c1 + 1, w))
+            a, b, pts = whole[rows, cols], pieces[rows, cols] == r, xyz[rows, cols]
+            meet = joined = 0
+            for d in (0, 1):  # as `Roster._continuing` counted them in numpy
+                one, other = pair_slices(a.shape, d)
+                pairs = (a[one] & b[other]) | (b[one] & a[other])
+                gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
+                meet += gap.size
+                joined += int(np.count_nonzero(gap <= 0.01))
+            want.append((np.count_nonzero(pieces[r0:r1, c0:c1] == r), meet, joined))
+        sizes, meet, joined = measure_kernels.seams(
+            mask, top, left, pieces, near, corners, xyz, 0.01
+        )
+        assert list(zip(sizes, meet, joined, strict=True)) == want
+
+
 def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
     rng = np.random.default_rng(9)
     for _ in range(50):

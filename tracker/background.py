@@ -228,20 +228,20 @@ class BackgroundModel:
         otherwise widen it, until none stood out of it). What stood there when the belt was
         laid (a rail, a guide), or was taken in by `absorb` since, stays; a pixel learned
         only since goes back to the belt's surface."""
+        self._find_held_surface(frame, belt)
+        background_kernels.hold_belt(
+            self.range, self.sigma, self.known, self._held_surface, self._cleared_range, noise,
+            self.params.min_sigma_m, self.params.min_height_m,
+        )  # fmt: skip
+
+    def _find_held_surface(self, frame: Frame, belt: BeltGeometry) -> None:
+        """The belt's surface along each pixel's ray, for `hold_belt`: found once per belt
+        (again while it is nowhere)."""
         if belt is not self._held_for or np.isnan(self._held_surface).all():
             with np.errstate(invalid="ignore", divide="ignore"):
                 surface = belt.range_along(frame.xyz / frame.range[..., None])
             self._held_for = belt
             self._held_surface = np.where(np.isfinite(surface), surface, np.nan)
-        p = self.params
-        over = self.known & np.isfinite(self._held_surface)
-        then = np.where(np.isnan(self._cleared_range), self._held_surface, self._cleared_range)
-        cap = np.maximum(noise, p.min_sigma_m)
-        with np.errstate(invalid="ignore"):
-            loud = over & (self.sigma > cap)
-            self.sigma[loud] = cap[loud]
-            came = over & (then - self.range > np.maximum(3.0 * self.sigma, p.min_height_m))
-        self.range[came] = then[came]
 
     def absorb(self, frame: Frame, where: B, noise: F64) -> None:
         """Take what is seen in `where` as scenery from now on (something that stays put)."""
@@ -293,15 +293,18 @@ class BackgroundModel:
         seen[rows, cols] = self.range[rows, cols] - behind[rows, cols]
         return seen
 
-    def weighed_nearness(self, frame: Frame) -> tuple[F64, F64]:
+    def weighed_nearness(self, frame: Frame, seen: F64 | None = None) -> tuple[F64, F64]:
         """What the background's cost weighs: each pixel's nearness (metres in front of the
         scenery, 0 where unknown or invalid; `seen_range`) and its noise; where the noise is
         so loud that the lowest object (`min_height_sigmas`) would not stand out pixel by
         pixel, the median of the 3×3 neighbourhood instead (a step's edge stays where it is),
-        with that median's smaller noise."""
+        with that median's smaller noise. `seen`: the frame's `seen_range`, where the caller
+        has it."""
+        if seen is None:
+            seen = self.seen_range(frame)
         usable = frame.valid & self.known
         with np.errstate(invalid="ignore"):
-            nearer = np.where(usable, self.range - self.seen_range(frame), 0.0)
+            nearer = np.where(usable, self.range - seen, 0.0)
         p = self.params
         loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
         if not loud.any():
@@ -312,19 +315,30 @@ class BackgroundModel:
             np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
         )
 
-    def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
+    def update(
+        self,
+        frame: Frame,
+        free: B,
+        noise: F64,
+        occupied: F64,
+        reach: float,
+        seen: F64 | None = None,
+    ) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
         range once the pixel has read farther for `reveal_frames` frames in a row, tracked
         or not (nothing stands behind the scenery: the model was wrong there). A pixel
         not known yet is learned after `reveal_frames` free frames in a row (the median of
         their readings; its noise `noise`, the frame's), unless it lies within `reach` of
-        one of the `occupied` (k, 3) points: an object's part its track missed."""
+        one of the `occupied` (k, 3) points: an object's part its track missed. `seen`: the
+        frame's `seen_range`, where the caller has it."""
+        if seen is None:
+            seen = self.seen_range(frame)
         p = self.params
         usable = free & frame.valid
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
         background_kernels.follow_scene(
             self.range, self.sigma, self.known, self._farther, self._farther_min,
-            self._unknown_seen, self._unknown_reads, self.seen_range(frame), frame.valid, usable,
+            self._unknown_seen, self._unknown_reads, seen, frame.valid, usable,
             near_any(frame.xyz, due, occupied, reach),
             noise, p.noise_factor, p.rate, p.min_sigma_m, p.reveal_frames, BLEND_SIGMAS,
             BLEND_VARIANCE_SHARE,

@@ -136,3 +136,32 @@ def standing_regions(
                 and mean > min_height
             )
     return out
+
+
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, F64_2D, F64_2D, 1.0, 1.0))
+def hold_belt(
+    model: F64, sigma: F64, known: B, surface: F64, cleared: F64, noise: F64,
+    min_sigma: float, min_height: float,
+) -> None:  # fmt: skip
+    """`BackgroundModel.hold_belt`'s arithmetic, in place, over the known pixels where the
+    belt's `surface` is finite: the noise `sigma` at most max(`noise`, `min_sigma`), then the
+    range `model` back to what it was (`cleared`, or the belt's surface where that is nan)
+    where it came nearer than that by more than max(3 `sigma`, `min_height`) (numpy's
+    maximum: nan where either is)."""
+    h, w = model.shape
+    for v in range(h):
+        for u in range(w):
+            then = surface[v, u]
+            if not (known[v, u] and np.isfinite(then)):
+                continue
+            if not np.isnan(cleared[v, u]):
+                then = cleared[v, u]
+            n = noise[v, u]
+            cap = n if (np.isnan(n) or n > min_sigma) else min_sigma
+            if sigma[v, u] > cap:
+                sigma[v, u] = cap
+            reach = 3.0 * sigma[v, u]
+            if not (np.isnan(reach) or reach > min_height):
+                reach = min_height
+            if then - model[v, u] > reach:
+                model[v, u] = then

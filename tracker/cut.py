@@ -190,16 +190,22 @@ class JointCut:
         """The most a pixel's ties can add up to (all eight neighbours at its place)."""
 
     def labels(
-        self, frame: Frame, noise: F64, tracks: list[LiveTrack], background: BackgroundModel
+        self,
+        frame: Frame,
+        noise: F64,
+        tracks: list[LiveTrack],
+        background: BackgroundModel,
+        seen: F64,
     ) -> U16:
-        """Labels (0 or a track id) of every pixel of `frame` (its range noise `noise`)."""
+        """Labels (0 or a track id) of every pixel of `frame` (its range noise `noise`, its
+        ranges as the scenery is compared with `seen`: `BackgroundModel.seen_range`)."""
         p = self.params
         h, w = frame.shape
         labels = np.zeros((h, w), np.uint16)
         if not tracks:
             return labels
         valid = frame.valid
-        u0 = self.background_cost(frame, background)
+        u0 = self.background_cost(frame, background, seen)
         u0[~valid] = 0.0
         # ties only where they can matter: where the pixel's own ties could free it, and
         # around invalid pixels (which a run of them may free)
@@ -239,7 +245,7 @@ class JointCut:
         labels[nodes.rows, nodes.cols] = ids[chosen]
         return labels
 
-    def background_cost(self, frame: Frame, background: BackgroundModel) -> F64:
+    def background_cost(self, frame: Frame, background: BackgroundModel, seen: F64) -> F64:
         """Each pixel's cost for the background: half the square of how far it stands in
         front of the scenery, in noise sigmas, less the deadband, at most `background_cap`;
         `unknown_cost` where the scenery is not known (everywhere, before it is learned)."""
@@ -247,7 +253,7 @@ class JointCut:
         bg = background
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame)
+        nearer, sigma = bg.weighed_nearness(frame, seen)
         cost: F64 = cut_kernels.background_cost(
             bg.range, sigma, bg.known, bg.range - nearer, frame.valid, p.deadband,
             p.background_cap, p.unknown_cost,

@@ -4,10 +4,12 @@ box and points, their mean and extent, and how many pixels of each piece each tr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from tofcut._types import F64, I32, I64, U16
-from tofcut.tracker.compiled import F64_2D, F64_3D, I32_2D, I64_1D, U16_2D, kernel
+from tofcut._types import F64, I32, I64, U16, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, I64_1D, I64_2D, U16_2D, kernel
 
 
 @kernel((U16_2D, F64_3D, I64_1D))
@@ -86,3 +88,82 @@ def held_pieces(
         for u in range(w):
             out[row[labels[v, u]], pieces[v, u]] += 1
     return out
+
+
+@kernel((U16_2D, I32_2D, 1))
+def touching(labels: U16, pieces: I32, reach: int) -> tuple[I64, I64, I32]:
+    """Per label > 0 of `labels`, the pieces > 0 of `pieces` with a pixel at most `reach`
+    pixels from one of its pixels across and down (an 8-connected `reach`-step dilation):
+    the labels that have some, ascending, where each one's start in the pieces (and, last,
+    where the last ends), and the pieces, ascending for each label. From the pieces' pixels,
+    which are few beside the tracks' (they stand out and no track took them): one pass to
+    count the pairs, one to write them."""
+    h, w = labels.shape
+    pairs = np.empty(0, np.int64)
+    for write in (False, True):
+        n = 0
+        for v in range(h):
+            for u in range(w):
+                r = pieces[v, u]
+                if r <= 0:
+                    continue
+                for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
+                    for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
+                        lab = labels[v2, u2]
+                        if lab == 0:
+                            continue
+                        if write:
+                            pairs[n] = np.int64(lab) << 32 | np.int64(r)
+                        n += 1
+        if not write:
+            pairs = np.empty(n, np.int64)
+    pairs = np.unique(pairs)
+    ids = np.empty(pairs.size, np.int64)
+    starts = np.empty(pairs.size + 1, np.int64)
+    k = 0
+    for n in range(pairs.size):
+        if n == 0 or pairs[n] >> 32 != pairs[n - 1] >> 32:
+            ids[k] = pairs[n] >> 32
+            starts[k] = n
+            k += 1
+    starts[k] = pairs.size
+    return ids[:k].copy(), starts[: k + 1].copy(), (pairs & 0xFFFFFFFF).astype(np.int32)
+
+
+@kernel((B_2D, 1, 1, I32_2D, I64_1D, I64_2D, F64_3D, 1.0))
+def seams(
+    mask: B, top: int, left: int, pieces: I32, near: I64, boxes: I64, xyz: F64,
+    step_m: float,
+) -> tuple[I64, I64, I64]:  # fmt: skip
+    """For each piece `near[k]` of `pieces`, within its box `boxes[k]` (first row, row past
+    the last, first column, column past the last): its pixels there; and of the pairs of
+    side-by-side pixels (across or down) in that box grown by one of which one is in `mask`
+    (a mask whose first pixel is the frame's (top, left)) and the other in the piece, how
+    many, and how many of them have 3D points within `step_m` of each other (numpy's
+    `norm`: the square root of the squares summed in order x, y, z)."""
+    h, w = pieces.shape
+    mh, mw = mask.shape
+    sizes = np.zeros(near.size, np.int64)
+    meet = np.zeros(near.size, np.int64)
+    joined = np.zeros(near.size, np.int64)
+    for k in range(near.size):
+        r = near[k]
+        for v in range(boxes[k, 0], boxes[k, 1]):
+            for u in range(boxes[k, 2], boxes[k, 3]):
+                sizes[k] += pieces[v, u] == r
+        r0, r1 = max(boxes[k, 0] - 1, 0), min(boxes[k, 1] + 1, h)
+        c0, c1 = max(boxes[k, 2] - 1, 0), min(boxes[k, 3] + 1, w)
+        for dv, du in ((0, 1), (1, 0)):
+            for v in range(r0, r1 - dv):
+                for u in range(c0, c1 - du):
+                    v2, u2 = v + dv, u + du
+                    a1 = 0 <= v - top < mh and 0 <= u - left < mw and mask[v - top, u - left]
+                    a2 = 0 <= v2 - top < mh and 0 <= u2 - left < mw and mask[v2 - top, u2 - left]
+                    if not ((a1 and pieces[v2, u2] == r) or (a2 and pieces[v, u] == r)):
+                        continue
+                    x = xyz[v, u, 0] - xyz[v2, u2, 0]
+                    y = xyz[v, u, 1] - xyz[v2, u2, 1]
+                    z = xyz[v, u, 2] - xyz[v2, u2, 2]
+                    meet[k] += 1
+                    joined[k] += math.sqrt(x * x + y * y + z * z) <= step_m
+    return sizes, meet, joined

@@ -52,12 +52,12 @@ class Pieces:
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> I32:
         """Pieces of surface that stand out of the scenery and no track took (0 in `labels`),
-        numbered from 1."""
+        numbered from 1; `seen`: the frame's `BackgroundModel.seen_range`."""
         bg = background
         q = bg.params
-        seen = bg.seen_range(frame)
         body = background_kernels.standing_out(
             bg.range, bg.sigma, bg.known, seen, frame.valid, labels, q.noise_factor,
             q.min_height_m,
@@ -112,11 +112,9 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     if not loud.any():
         return Quietened(frame.xyz, frame.range, noise)
     rng = stats_kernels.median3_within(frame.range, body, loud)
-    moved = loud & (frame.range != 0)
-    xyz = frame.xyz.copy()
-    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
-    quiet = noise.copy()
-    quiet[loud] *= MEDIAN_NOISE_SHARE
+    xyz, quiet = pieces_kernels.quieten(
+        frame.xyz, frame.range, rng, noise, loud, MEDIAN_NOISE_SHARE
+    )
     return Quietened(xyz, rng, quiet)
 
 

@@ -37,3 +37,27 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
                     else:
                         out[v2, u2] = False
     return out
+
+
+@kernel((F64_3D, F64_2D, F64_2D, F64_2D, B_2D, 1.0))
+def quieten(
+    xyz: F64, rng: F64, median: F64, noise: F64, loud: B,
+    share: float,
+) -> tuple[F64, F64]:  # fmt: skip
+    """`tofcut.tracker.pieces.quietened`'s arithmetic: copies of `xyz` and `noise` where each
+    `loud` pixel's point is moved along its ray from range `rng` to `median` (not at range 0)
+    and its noise is times `share`."""
+    h, w = loud.shape
+    out = xyz.copy()
+    quiet = noise.copy()
+    for v in range(h):
+        for u in range(w):
+            if not loud[v, u]:
+                continue
+            quiet[v, u] *= share
+            if rng[v, u] != 0:
+                ratio = median[v, u] / rng[v, u]
+                out[v, u, 0] *= ratio
+                out[v, u, 1] *= ratio
+                out[v, u, 2] *= ratio
+    return out, quiet

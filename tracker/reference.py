@@ -19,9 +19,11 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
+from tofcut.tracker import stats_kernels
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
     BLEND_VARIANCE_SHARE,
+    MEDIAN_NOISE_SHARE,
     BackgroundModel,
     near_any,
     on_belt_height,
@@ -33,7 +35,7 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
 from tofcut.tracker.noise import FIT_STRIDE
 from tofcut.tracker.params import TrackerParams
-from tofcut.tracker.pieces import Pieces, quietened
+from tofcut.tracker.pieces import Pieces, Quietened
 from tofcut.tracker.stats import MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker
 
@@ -75,10 +77,18 @@ def _replacing(base: type) -> Callable[[type[T]], type[T]]:
 class ReferenceBackground(BackgroundModel):
     """The empty-scene model following the scene in plain numpy."""
 
-    def update(self, frame: Frame, free: B, noise: F64, occupied: F64, reach: float) -> None:
+    def update(
+        self,
+        frame: Frame,
+        free: B,
+        noise: F64,
+        occupied: F64,
+        reach: float,
+        seen: F64 | None = None,
+    ) -> None:
         p = self.params
         usable = free & frame.valid
-        seen = self.seen_range(frame)
+        seen = self.seen_range(frame) if seen is None else seen
         with np.errstate(invalid="ignore"):
             deviation = seen - self.range
             farther = frame.valid & (deviation > p.noise_factor * self.sigma)
@@ -106,6 +116,18 @@ class ReferenceBackground(BackgroundModel):
         self._unknown_seen[newly] = 0
         self.known |= newly
 
+    def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
+        self._find_held_surface(frame, belt)
+        p = self.params
+        over = self.known & np.isfinite(self._held_surface)
+        then = np.where(np.isnan(self._cleared_range), self._held_surface, self._cleared_range)
+        cap = np.maximum(noise, p.min_sigma_m)
+        with np.errstate(invalid="ignore"):
+            loud = over & (self.sigma > cap)
+            self.sigma[loud] = cap[loud]
+            came = over & (then - self.range > np.maximum(3.0 * self.sigma, p.min_height_m))
+        self.range[came] = then[came]
+
 
 @_replacing(JointCut)
 class ReferenceCut(JointCut):
@@ -113,7 +135,12 @@ class ReferenceCut(JointCut):
     purpose (the same signatures, the same order), in the numpy the tests hold it to."""
 
     def labels(
-        self, frame: Frame, noise: F64, tracks: list[LiveTrack], background: BackgroundModel
+        self,
+        frame: Frame,
+        noise: F64,
+        tracks: list[LiveTrack],
+        background: BackgroundModel,
+        seen: F64,
     ) -> U16:
         p = self.params
         h, w = frame.shape
@@ -121,7 +148,7 @@ class ReferenceCut(JointCut):
         if not tracks:
             return labels
         valid = frame.valid
-        u0 = self.background_cost(frame, background)
+        u0 = self.background_cost(frame, background, seen)
         u0[~valid] = 0.0
         ties, total = _ties(frame, p)
         free = valid & (p.object_cost - u0 <= total)
@@ -179,12 +206,12 @@ class ReferenceCut(JointCut):
                 out[k] += p.surface_weight * (near / spread) ** 2
         return np.where(np.isnan(out), np.inf, out)
 
-    def background_cost(self, frame: Frame, background: BackgroundModel) -> F64:
+    def background_cost(self, frame: Frame, background: BackgroundModel, seen: F64) -> F64:
         p = self.params
         bg = background
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame)
+        nearer, sigma = bg.weighed_nearness(frame, seen)
         z = np.maximum(nearer / sigma - p.deadband, 0.0)
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
@@ -202,11 +229,12 @@ class ReferencePieces(Pieces):
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> I32:
         bg = background
         usable = frame.valid & bg.known & (labels == 0)
         body = bg.standing_out(frame) & (labels == 0)
-        body |= standing_regions(bg.range, bg.sigma, usable, bg.seen_range(frame), bg.params)
+        body |= standing_regions(bg.range, bg.sigma, usable, seen, bg.params)
         if self.params.rigid and belt is not None:
             body &= on_belt_height(frame.xyz, belt)
         return self.split(frame, body, noise, belt)
@@ -300,3 +328,17 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
         problem = PottsProblem(pair, local[i[edges]], local[j[edges]], w[edges])
         chosen[nodes] = np.where(solve_binary(problem) == 1, track, 0)
     return chosen
+
+
+def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
+    """`tofcut.tracker.pieces.quietened` in plain numpy."""
+    loud = body & (noise * 3.0 >= step_m)
+    if not loud.any():
+        return Quietened(frame.xyz, frame.range, noise)
+    rng = stats_kernels.median3_within(frame.range, body, loud)
+    moved = loud & (frame.range != 0)
+    xyz = frame.xyz.copy()
+    xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
+    quiet = noise.copy()
+    quiet[loud] *= MEDIAN_NOISE_SHARE
+    return Quietened(xyz, rng, quiet)

@@ -26,8 +26,8 @@ from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.live_track import SHAPE_FLOOR_M, LiveTrack, shape_of
-from tofcut.tracker.neighbours import EIGHT, pair_slices
+from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
+from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
 from tofcut.tracker.tops import facing_up, one_object
@@ -74,22 +74,9 @@ def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
 def _touching_pieces(labels: U16, pieces: I32, reach: int) -> dict[int, I32]:
     """Per track id, the pieces with a pixel within `reach` pixels (8-connected steps) of
     its mask: `pieces[binary_dilation(labels == id, EIGHT, reach)]`, for all tracks at
-    once."""
-    h, w = labels.shape
-    found = []
-    for dv in range(-reach, reach + 1):
-        for du in range(-reach, reach + 1):
-            here = labels[max(dv, 0) : h + min(dv, 0), max(du, 0) : w + min(du, 0)]
-            there = pieces[max(-dv, 0) : h + min(-dv, 0), max(-du, 0) : w + min(-du, 0)]
-            both = (here > 0) & (there > 0)
-            if both.any():
-                found.append(here[both].astype(np.int64) << 32 | there[both].astype(np.int64))
-    if not found:
-        return {}
-    pairs = np.unique(np.concatenate(found))
-    ids, rows = np.unique(pairs >> 32, return_index=True)
-    groups = np.split((pairs & 0xFFFFFFFF).astype(np.int32), rows[1:])
-    return dict(zip(ids.tolist(), groups, strict=True))
+    once (`measure_kernels.touching`)."""
+    ids, starts, near = measure_kernels.touching(labels, pieces, reach)
+    return {i: near[starts[k] : starts[k + 1]] for k, i in enumerate(ids.tolist())}
 
 
 class Roster:
@@ -179,16 +166,20 @@ class Roster:
         noise: F64,
         background: BackgroundModel,
         belt: BeltGeometry | None,
+        seen: F64,
     ) -> Measured:
         """Update every track from its mask in `labels` (`dt` seconds since the last frame),
-        and look for new objects. Changes `labels`."""
+        and look for new objects (`seen`: the frame's `BackgroundModel.seen_range`). Changes
+        `labels`."""
         p = self.params
         ended: list[int] = []
         keep: list[LiveTrack] = []
         born = self._reconcile(frame, labels, noise, belt)
         ended += self._join(frame, labels, noise, belt)
         pieces = (
-            self.pieces.loose(frame, labels, noise, background, belt) if background.ready else None
+            self.pieces.loose(frame, labels, noise, background, belt, seen)
+            if background.ready
+            else None
         )
         # across a 3D step, what stands out lies past the seam the step leaves
         seam = 1 if p.rigid else 2
@@ -213,19 +204,19 @@ class Roster:
                     # first seen in part (a bag's rounded rim, a roll's far end) bigger than
                     # its shape, and a person may have moved a limb where its prediction
                     # did not reach
-                    whole_mask = np.zeros(labels.shape, bool)
-                    whole_mask[box] = mask
                     if piece_boxes is None:
                         piece_boxes = ndimage.find_objects(pieces)
-                    beside = self._continuing(
-                        frame, whole_mask, pieces, touching[t.id], piece_boxes
-                    )
+                    beside = self._continuing(frame, mask, box, pieces, touching[t.id], piece_boxes)
                     if beside.size:
-                        seen = whole_mask | np.isin(pieces, beside)
-                        pieces[seen] = 0
-                        labels[seen] = t.id
-                        box = _box_of(seen)
-                        pts = frame.xyz[seen]
+                        # all of it lies within its box and those of the pieces it takes
+                        win = _union([box] + [piece_boxes[r - 1] for r in beside.tolist()])
+                        taken = np.zeros(len(piece_boxes) + 1, bool)  # by piece
+                        taken[beside] = True
+                        grown = taken[pieces[win]] | _placed(mask, box, win)
+                        pieces[win][grown] = 0
+                        labels[win][grown] = t.id
+                        box = _shifted(_box_of(grown), win)
+                        pts = frame.xyz[win][grown]
                 t.see(pts, box, entering, belt)
             else:
                 if box is not None:
@@ -309,8 +300,9 @@ class Roster:
             held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
         )
         splitting = []
+        many = big.sum(axis=1) >= 2
         for k, t in enumerate(self.tracks):
-            two = big[k].sum() >= 2 and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
+            two = bool(many[k]) and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
             t.split_frames = t.split_frames + 1 if two else 0
             if t.split_frames >= p.split_frames:
                 splitting.append(k)
@@ -348,24 +340,30 @@ class Roster:
         self,
         frame: Frame,
         mask: B,
+        box: Box,
         pieces: I32,
         near: I32,
-        piece_boxes: list[tuple[slice, slice] | None],
+        piece_boxes: list[Box | None],
     ) -> I32:
-        """Which pieces beside a track's `mask` are more of the same object (pieces smaller
-        than MIN_PIECE are noise): for rigid targets, those that go on from the mask's
-        surface without a 3D step (`joined_m`); for targets that bend, all (a limb).
-        `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
+        """Which pieces beside a track's `mask` (within its `box`) are more of the same
+        object (pieces smaller than MIN_PIECE are noise): for rigid targets, those that go on
+        from the mask's surface without a 3D step (`joined_m`); for targets that bend, all (a
+        limb). `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
+        corners = np.zeros((near.size, 4), np.int64)
+        for k, r in enumerate(near.tolist()):
+            rows, cols = piece_boxes[r - 1] or (slice(0, 0), slice(0, 0))
+            corners[k] = rows.start, rows.stop, cols.start, cols.stop
+        sizes, meet, joined = measure_kernels.seams(
+            mask, box[0].start, box[1].start, pieces, near.astype(np.int64), corners, frame.xyz,
+            self.params.joined_m,
+        )  # fmt: skip
         keep = []
-        for r in near.tolist():
-            box = piece_boxes[r - 1]
-            assert box is not None
-            if np.count_nonzero(pieces[box] == r) < MIN_PIECE:
+        for k, r in enumerate(near.tolist()):
+            if sizes[k] < MIN_PIECE:
                 continue
-            if self.params.rigid:
-                share = _joined_share(frame.xyz, mask, pieces == r, box, self.params.joined_m)
-                if share < 0.5:
-                    continue
+            # for rigid targets: most of the seam without a step
+            if self.params.rigid and not (meet[k] and joined[k] / meet[k] >= 0.5):
+                continue
             keep.append(r)
         return np.array(keep, np.int32)
 
@@ -439,21 +437,32 @@ def _nearest_pixel(frame: Frame, point: F64) -> tuple[int, int]:
     return int(v), int(u)
 
 
-def _joined_share(xyz: F64, a: B, b: B, box: tuple[slice, slice], step_m: float) -> float:
-    """Of the pixel pairs where `a` meets `b` side by side (`b` within `box`), the share
-    whose 3D points are within `step_m` of each other (0 where they do not meet)."""
-    h, w = a.shape
-    rows = slice(max(box[0].start - 1, 0), min(box[0].stop + 1, h))
-    cols = slice(max(box[1].start - 1, 0), min(box[1].stop + 1, w))
-    pa, pb, pts = a[rows, cols], b[rows, cols], xyz[rows, cols]
-    meet = joined = 0
-    for k in (0, 1):  # right, down
-        one, other = pair_slices(pa.shape, k)
-        pairs = (pa[one] & pb[other]) | (pb[one] & pa[other])
-        gap = np.linalg.norm(pts[one][pairs] - pts[other][pairs], axis=-1)
-        meet += gap.size
-        joined += int(np.count_nonzero(gap <= step_m))
-    return joined / meet if meet else 0.0
+def _placed(mask: B, box: Box, win: Box) -> B:
+    """`mask`, which covers `box`, as it falls within the window `win` (False elsewhere)."""
+    out = np.zeros((win[0].stop - win[0].start, win[1].stop - win[1].start), bool)
+    r0, r1 = max(box[0].start, win[0].start), min(box[0].stop, win[0].stop)
+    c0, c1 = max(box[1].start, win[1].start), min(box[1].stop, win[1].stop)
+    if r0 < r1 and c0 < c1:
+        out[r0 - win[0].start : r1 - win[0].start, c0 - win[1].start : c1 - win[1].start] = mask[
+            r0 - box[0].start : r1 - box[0].start, c0 - box[1].start : c1 - box[1].start
+        ]
+    return out
+
+
+def _union(boxes: list[Box | None]) -> Box:
+    """The smallest box holding all of `boxes` (none of them None)."""
+    rows = [b[0] for b in boxes if b is not None]
+    cols = [b[1] for b in boxes if b is not None]
+    return (
+        slice(min(r.start for r in rows), max(r.stop for r in rows)),
+        slice(min(c.start for c in cols), max(c.stop for c in cols)),
+    )
+
+
+def _shifted(box: Box, win: Box) -> Box:
+    """A box found within the window `win`, in the frame's coordinates."""
+    r, c = win[0].start, win[1].start
+    return slice(box[0].start + r, box[0].stop + r), slice(box[1].start + c, box[1].stop + c)
 
 
 def _box_of(mask: B) -> tuple[slice, slice]:

@@ -75,10 +75,8 @@ def split_by_tops(
         return pieces
     spread = np.sqrt(noise2 / np.maximum(size, 1))
     parted = []
-    for piece in np.unique(home[big]).tolist():
+    for piece in np.nonzero(np.bincount(home[big]) >= 2)[0].tolist():  # two big tops or more
         mine = np.nonzero(big & (home == piece))[0]
-        if mine.size < 2:
-            continue
         h, s = height[mine], spread[mine]
         apart = np.abs(h[:, None] - h[None, :]) >= np.maximum(
             MIN_TOP_STEP_M, 3.0 * np.hypot(s[:, None], s[None, :])

@@ -19,11 +19,20 @@ def steep_pixels(
     """`tofcut.tracker.tops.facing_up`'s arithmetic: of `where`'s points averaged over 3×3,
     the pixels on a span of `baseline` pixels (along a row or a column) whose rise along
     `normal` is more than `max_slope` times their spacing across it; and, per direction,
-    each pair's slope noise (a 3×3 mean's noise twice, over the spacing)."""
+    each pair's slope noise (a 3×3 mean's noise twice, over the spacing). Only `where`'s
+    box is gone over: every pixel and pair it weighs lies in it."""
     h, w = where.shape
-    pts = np.full((h, w, 3), np.nan)
+    r0, r1, c0, c1 = h, 0, w, 0
     for v in range(h):
         for u in range(w):
+            if where[v, u]:
+                r0, r1, c0, c1 = min(r0, v), max(r1, v + 1), min(c0, u), max(c1, u + 1)
+    steep = np.zeros((h, w), np.bool_)
+    if r1 <= r0:
+        return steep, np.empty(0), np.empty(0)
+    pts = np.empty((r1 - r0, c1 - c0, 3))  # the 3×3 means, at `where`'s pixels only
+    for v in range(r0, r1):
+        for u in range(c0, c1):
             if not where[v, u]:
                 continue
             n = 0
@@ -35,20 +44,21 @@ def steep_pixels(
                         sy += xyz[v2, u2, 1]
                         sz += xyz[v2, u2, 2]
                         n += 1
-            pts[v, u, 0], pts[v, u, 1], pts[v, u, 2] = sx / n, sy / n, sz / n
-    steep = np.zeros((h, w), np.bool_)
-    ratios = np.empty((2, h * w))
+            pts[v - r0, u - c0, 0], pts[v - r0, u - c0, 1] = sx / n, sy / n
+            pts[v - r0, u - c0, 2] = sz / n
+    ratios = np.empty((2, (r1 - r0) * (c1 - c0)))
     counts = np.zeros(2, np.int64)
     share = math.sqrt(2.0) / 3.0
     for axis in range(2):
         dv, du = (baseline, 0) if axis == 0 else (0, baseline)
-        for v in range(h - dv):
-            for u in range(w - du):
+        for v in range(r0, r1 - dv):
+            for u in range(c0, c1 - du):
                 if not (where[v, u] and where[v + dv, u + du]):
                     continue
-                d0 = pts[v + dv, u + du, 0] - pts[v, u, 0]
-                d1 = pts[v + dv, u + du, 1] - pts[v, u, 1]
-                d2 = pts[v + dv, u + du, 2] - pts[v, u, 2]
+                fv, fu, nv, nu = v + dv - r0, u + du - c0, v - r0, u - c0  # far end, near end
+                d0 = pts[fv, fu, 0] - pts[nv, nu, 0]
+                d1 = pts[fv, fu, 1] - pts[nv, nu, 1]
+                d2 = pts[fv, fu, 2] - pts[nv, nu, 2]
                 rise = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
                 a0, a1, a2 = d0 - rise * normal[0], d1 - rise * normal[1], d2 - rise * normal[2]
                 spacing = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)

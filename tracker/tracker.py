@@ -29,7 +29,7 @@ import numpy as np
 from tofcut._types import F64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import compiled
+from tofcut.tracker import compiled, frame_kernels
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
@@ -109,19 +109,24 @@ class Tracker:
             t.predict(dt, prior)
         # before the scenery is known, a seeded target is what lies round its seed
         ready = self.background.ready
+        # the frame's ranges as the scenery is compared with, once for the frame
+        seen = self.background.seen_range(frame) if ready else frame.range
         labels = (
-            self.cut.labels(frame, noise, self.roster.tracks, self.background)
+            self.cut.labels(frame, noise, self.roster.tracks, self.background, seen)
             if ready
             else self.roster.grown(frame)
         )
-        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt)
+        measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt, seen)
         born += measured.born
         ended = list(measured.ended)
         if ready and prior is not None:
-            ended += self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+            still = self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
+            if still:  # the scenery took them in: its ranges changed
+                seen = self.background.seen_range(frame)
+            ended += still
         occupied = self.roster.points()
         if ready:
-            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m)
+            self.background.update(frame, labels == 0, noise, occupied, p.keep_clear_m, seen)
         else:
             self.background.learn(frame, noise, occupied, p.keep_clear_m)
         if not self._belt_laid and self.background.ready and self.belt is not None:
@@ -144,9 +149,9 @@ def _checked(frame: Frame, shape: tuple[int, int] | None) -> Frame:
         raise SegmentError(f"a {w}x{h} frame in a run of {shape[1]}x{shape[0]} frames")
     if frame.range.shape != (h, w) or frame.valid.shape != (h, w) or frame.xyz.shape != (h, w, 3):
         raise SegmentError("the frame's range, valid mask and points differ in shape")
-    finite = np.isfinite(frame.range) & np.isfinite(frame.xyz).all(axis=-1)
-    if finite.all():
+    if frame_kernels.all_finite(frame.range, frame.xyz):
         return frame
+    finite = np.isfinite(frame.range) & np.isfinite(frame.xyz).all(axis=-1)
     # a point the cut may still hand to a track (an invalid pixel inside an object) must
     # not carry a NaN into its cloud: such pixels read 0
     rng = np.where(finite, frame.range, 0.0)
