@@ -56,7 +56,7 @@ def test_live_with_the_emulated_conveyor_gives_the_tracker_the_belts_prior(
     out = capsys.readouterr().out
     assert len(priors) == 36
     informed = [p for p in priors if p is not None and p.informed]
-    assert len(informed) >= 30  # all but frames that came before the link's first reading
+    assert len(informed) == 36  # the run waited for the link's first reading
     for p in informed:
         np.testing.assert_allclose(p.mean, [BELT_MPS, 0.0, 0.0], atol=1e-9)
         # The conveyor's prior, not the scene's fixed isotropic one: tight along the belt.

@@ -98,6 +98,10 @@ def conveyor_config(args: argparse.Namespace, port: str | None) -> ConveyorConfi
     return replace(config, link=link, diverter_m=diverter_m)
 
 
+FIRST_READING_S = 2.0
+"""How long a run waits for the conveyor link's first reading before its first frame."""
+
+
 @dataclass(eq=False)
 class ConveyorLine(Closing):
     """An opened conveyor: the client, the emulated controller behind it if any, rejects."""
@@ -224,7 +228,12 @@ def open_conveyor(
         line.rejects = _rejects(rule, geometry, config.diverter_m, client, on_reject or log_reject)
     try:
         client.open()
+        # the first frames get the belt's prior: the run starts once the link has its
+        # first reading (or after FIRST_READING_S: a link that answers nothing says so in
+        # its own statistics and errors)
+        client.wait_for(lambda _: True, FIRST_READING_S)
     except BaseException:
+        client.close()
         if server is not None:
             server.close()
         raise
