@@ -9,7 +9,7 @@ import pytest
 
 from tofcut.driver.calibration import pixel_rays, project
 from tofcut.sim import load_truth, open_scene, save_truth, scene_names
-from tofcut.sim.preview import scene_exposure
+from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene, parse_scene, scene_toml
 from tofcut.sim.truth import truth_path
@@ -18,6 +18,7 @@ BUILT_IN = [
     "belt-parts",
     "conveyor",
     "paper-fig1",
+    "paper-fig1-premise",
     "paper-fig3",
     "paper-fig4",
     "paper-fig5",
@@ -26,7 +27,7 @@ BUILT_IN = [
     "table",
     "tools",
 ]
-PAPER = ["paper-fig1", "paper-fig3", "paper-fig4", "person", "robot"]
+PAPER = ["paper-fig1", "paper-fig1-premise", "paper-fig3", "paper-fig4", "person", "robot"]
 
 ROOM = """
 duration_s = 10.0
@@ -74,6 +75,27 @@ def test_paper_scenes_mark_a_target_with_a_seed_inside_it(name):
     truth = src.truth_at(0.0)
     assert truth.labels[v, u] == target.id
     assert np.linalg.norm(target.seed_point - target.centroid) < 0.5
+
+
+@pytest.mark.parametrize("name", ["paper-fig1-premise", "paper-fig1"])
+def test_figure1_scenes_hold_or_break_its_premise_of_intensity(name):
+    """paper-fig1-premise: every object's median intensity within 15% of the target's, the
+    belt's round the target below half of any; paper-fig1 (the hard case): the belt's round
+    the target lies between the target's dark front and bright top."""
+    src = open_scene(name)
+    frame, truth = decode(src, scene_exposure(src, 0.0))
+    target = src.target
+    assert target is not None
+    seen = frame.valid & np.isfinite(frame.intensity)
+    near = np.linalg.norm(frame.xyz - target.centroid, axis=-1) < 0.25
+    belt = np.median(frame.intensity[seen & near & (truth.labels == 0)])
+    own = frame.intensity[seen & (truth.labels == target.id)]
+    medians = [np.median(frame.intensity[seen & (truth.labels == o.id)]) for o in src.objects]
+    if name == "paper-fig1-premise":
+        assert all(abs(m / np.median(own) - 1) < 0.15 for m in medians)
+        assert belt < 0.5 * min(medians)
+    else:
+        assert np.percentile(own, 10) < belt < np.percentile(own, 90)
 
 
 def test_labels_and_range_match_the_geometry_of_a_sphere():

@@ -212,7 +212,11 @@ def test_reproduce_writes_a_report(tmp_path, capsys):
     assert "of the paper's claims hold where their premise holds" in text
     assert "of the paper's claims hold on the hard scenes" in text
     assert "| support (ours) | grabCut |" in text
-    for png in ("fig1-target-box.png", "fig4-robot.png", "fig4-hard-robot.png", "fig5-wrench.png"):
+    premise, hard, *_ = text.split("Scene `paper-fig1-premise`.")[1].split("Scene `paper-fig1`.")
+    assert "Eq. (5) keeps the belt out here" in premise
+    assert "Nor does eq. (5) keep the belt out" in hard
+    pngs = ("fig1-target-box.png", "fig1-hard-target-box.png", "fig4-robot.png")
+    for png in (*pngs, "fig4-hard-robot.png", "fig5-wrench.png"):
         assert (tmp_path / png).stat().st_size > 1000
         assert f"({png})" in text
     assert main(["reproduce", "--out", str(tmp_path), "--seeds", "0"]) == 1

@@ -13,7 +13,7 @@ def register(subparsers: Any) -> None:
         "reproduce",
         help="run the paper's segmentation experiments on the emulator and write a report",
         description="Run Figures 1, 4 and 5 of Arif et al. on the emulator's built-in scenes "
-        "(Figures 4 and 5 where their premise holds and on the hard scenes) with every energy, "
+        "(each where its premise holds and on the hard scene) with every energy, "
         "the support energy and OpenCV's grabCut, score the masks against ground truth, and "
         "write report.md with PNG panels.",
     )
