@@ -19,6 +19,7 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tools.cli import main
 from tofcut.tools.commands.calibrate import CalibrationError, map_document
+from tofcut.tools.evaluation.belt_check import BARS, Errors, errors
 from tofcut.tracker.belt_finder import (
     BeltEstimate,
     BeltFinder,
@@ -30,9 +31,6 @@ from tofcut.tracker.belt_finder import (
 
 # --- scenes ---------------------------------------------------------------------------------
 
-BARS = {"normal_deg": 1.0, "plane_m": 0.01, "direction_deg": 2.0, "speed": 0.03, "width_m": 0.03}
-"""The issue's bars: plane normal, plane offset at the view's centre, direction, speed (share),
-width when both edges are in view."""
 SECONDS = 2.0
 """Frames looked at per scene: enough for every scene below to meet the bars."""
 
@@ -123,32 +121,6 @@ def _frames(source: SceneSource, count: int = 1000):
     period = source.settings.frame_period * 1e-4
     for i in range(count):
         yield decode(source, scene_exposure(source, i * period, i))[0]
-
-
-@dataclass(frozen=True)
-class Errors:
-    """How far a found belt is from the truth."""
-
-    normal_deg: float
-    plane_m: float
-    """Distance along the normal between the planes at the view's centre."""
-    direction_deg: float = math.nan
-    speed: float = math.nan
-    """|found / true - 1|."""
-    width_m: float = math.nan
-
-
-def errors(found: KnownBelt, truth: KnownBelt) -> Errors:
-    g, t = found.geometry, truth.geometry
-    normal = math.degrees(math.acos(min(1.0, abs(float(g.normal @ t.normal)))))
-    plane = abs(float(g.normal @ (t.origin - g.point)))
-    if found.speed_mps is None or truth.speed_mps is None:
-        return Errors(normal, plane)
-    true_dir = t.direction * math.copysign(1.0, truth.speed_mps)
-    direction = math.degrees(math.acos(min(1.0, float(g.direction @ true_dir))))
-    speed = abs(found.speed_mps / abs(truth.speed_mps) - 1)
-    width = math.nan if g.width_m is None or t.width_m is None else abs(g.width_m - t.width_m)
-    return Errors(normal, plane, direction, speed, width)
 
 
 # --- the finder on scenes -------------------------------------------------------------------

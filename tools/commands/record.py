@@ -109,7 +109,10 @@ def run(args: argparse.Namespace) -> int:
         path = truth_path(args.output)
         save_truth(path, truths)
         print(f"wrote {path}: ground truth of {len(truths)} frames")
-    kept = "kept in the capture's metadata" if resolution.belt else "nothing kept"
+    if args.bare:
+        kept = "not kept: --bare records the camera's stream alone"
+    else:
+        kept = "kept in the capture's metadata" if resolution.belt else "nothing kept"
     print(f"{resolution.describe()} ({kept})")
     if log is not None:
         print(
