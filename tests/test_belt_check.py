@@ -21,7 +21,7 @@ def test_the_belt_of_a_bare_family_line_is_found_within_the_bars(tmp_path, capsy
     assert out.startswith("1 lines; travel: found 1")
     for bar in ("normal within 1 °", "plane within 10 mm", "direction within 2 °",
                 "speed within 3 %"):  # fmt: skip
-        assert f"- {bar}: 1 of 1 lines judged" in out, out
+        assert f"- {bar}: 1 of 1 lines\n" in out, out
 
 
 def test_a_folder_that_is_not_a_familys_is_one_line(tmp_path, capsys):

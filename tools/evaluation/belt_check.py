@@ -109,7 +109,12 @@ def report(checks: Sequence[LineCheck]) -> str:
         judged = [w for c in checks if c.errors and (w := c.errors.within()[name]) is not None]
         summary.append(
             f"- {heading.split()[0]} within {BARS[name] * scale:g} {heading.split()[1]}: "
-            f"{sum(judged)} of {len(judged)} lines judged ({len(checks) - len(judged)} not)"
+            f"{sum(judged)} of {len(judged)} lines"
+            + (
+                f" ({len(checks) - len(judged)} with none to judge)"
+                if len(judged) < len(checks)
+                else ""
+            )
         )
     travel = Counter(c.travel for c in checks)
     head = f"{len(checks)} lines; travel: " + ", ".join(f"{k} {v}" for k, v in travel.items())
