@@ -228,9 +228,9 @@ def open_conveyor(
         line.rejects = _rejects(rule, geometry, config.diverter_m, client, on_reject or log_reject)
     try:
         client.open()
-        # the first frames get the belt's prior: the run starts once the link has its
-        # first reading (or after FIRST_READING_S: a link that answers nothing says so in
-        # its own statistics and errors)
+        # the frames get the belt's prior from the start of the stream: the run starts once
+        # the link has its first reading (or after FIRST_READING_S: a link that answers
+        # nothing says so in its own statistics and errors)
         client.wait_for(lambda _: True, FIRST_READING_S)
     except BaseException:
         client.close()
