@@ -250,9 +250,10 @@ def frame_at(scene: str, seed: int) -> tuple[Frame, FrameTruth]:
 
 
 def extent_of(obj: ObjectTruth) -> float:
-    """An object's extent for `Target.extent_m`: half the diagonal of its true 3D box (what
-    a tracker knows of an object it follows)."""
-    return float(np.linalg.norm(obj.extent_max - obj.extent_min)) / 2.0
+    """An object's extent for `Target.extent_m`: half the diagonal of its own 3D box (what a
+    tracker knows of an object it follows), not of its box along the camera's axes, which
+    grows as the object turns."""
+    return float(np.linalg.norm(obj.size)) / 2.0
 
 
 def target_of(truth: FrameTruth, object_id: int) -> Target:
