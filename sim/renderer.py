@@ -25,7 +25,7 @@ from tofcut.driver.protocol import TAPS, mod_freq_hz
 from tofcut.sim.conveyor import belt_geometry
 from tofcut.sim.lens import RayGrid, make_calibration, sphere_window
 from tofcut.sim.raycast import Hits, Placed, cast_all, cast_samples, cast_windows, depth_edges
-from tofcut.sim.scene import CameraSettings, Scene, body_pose, part_poses
+from tofcut.sim.scene import CameraSettings, Scene, body_part_poses, body_pose, part_poses
 from tofcut.sim.sensor import active_signal, expose, phase_of, tap_means
 from tofcut.sim.source import Exposure, Rendered
 from tofcut.sim.truth import FrameTruth, ObjectTruth
@@ -177,6 +177,10 @@ class SceneSource:
             vols = np.array([p.shape.volume for p in obj.parts])
             centres = np.array([p.translation for p in poses])
             boxes = [part.shape.aabb(pose) for part, pose in zip(obj.parts, poses, strict=True)]
+            own = [
+                part.shape.aabb(pose)
+                for part, pose in zip(obj.parts, body_part_poses(obj, t_mid), strict=True)
+            ]
             objects.append(
                 ObjectTruth(
                     obj.id,
@@ -185,6 +189,7 @@ class SceneSource:
                     (vols @ centres) / vols.sum(),
                     np.min([b[0] for b in boxes], axis=0),
                     np.max([b[1] for b in boxes], axis=0),
+                    np.max([b[1] for b in own], axis=0) - np.min([b[0] for b in own], axis=0),
                     int(counts[obj.id]),
                 )
             )

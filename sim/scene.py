@@ -170,11 +170,15 @@ def body_pose(obj: SceneObject, t_s: float, belt: Belt | None) -> Pose:
     return pose
 
 
+def body_part_poses(obj: SceneObject, t_s: float) -> list[Pose]:
+    """Body-from-part of every part of an object at scene time t (its joints swung)."""
+    return [
+        part.pose if part.swing is None else part.swing.pose(t_s).compose(part.pose)
+        for part in obj.parts
+    ]
+
+
 def part_poses(obj: SceneObject, t_s: float, belt: Belt | None, camera: Pose) -> list[Pose]:
     """Camera-from-part of every part of an object at scene time t."""
     body = camera.compose(body_pose(obj, t_s, belt))
-    out = []
-    for part in obj.parts:
-        local = part.pose if part.swing is None else part.swing.pose(t_s).compose(part.pose)
-        out.append(body.compose(local))
-    return out
+    return [body.compose(local) for local in body_part_poses(obj, t_s)]

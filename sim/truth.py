@@ -3,7 +3,8 @@
 Labels: 0 is the background (belt, floor, stand, walls); objects are numbered from 1 in
 the order of the scene file. Range is the true radial distance of each pixel centre at the
 frame's mid time, metres (inf where the ray hits nothing). Poses, centroids and extents are
-in camera coordinates (x right, y down, z forward) at that time.
+in camera coordinates (x right, y down, z forward) at that time; an object's size is in its
+own frame.
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ class ObjectTruth:
     extent_min: F64
     """Axis-aligned 3D box around the object in camera coordinates: lower corner, (3,)."""
     extent_max: F64
+    size: F64
+    """Edges of the object's own 3D box: the box round its parts in its body frame, so the
+    same however the object is turned (nan in files written before it was kept), (3,)."""
     pixels: int
     """How many pixels show the object (0: out of view or hidden)."""
 
@@ -70,7 +74,7 @@ def save_truth(path: str | Path, truths: Sequence[FrameTruth]) -> None:
     objs = [o for t in truths for o in t.objects]
     np.savez_compressed(
         path,
-        version=np.array(1),
+        version=np.array(2),
         sequence=np.array([t.sequence for t in truths], np.int64),
         time_s=np.array([t.time_s for t in truths], np.float64),
         tap_times_s=np.array([t.tap_times_s for t in truths], np.float64),
@@ -83,6 +87,7 @@ def save_truth(path: str | Path, truths: Sequence[FrameTruth]) -> None:
         object_centroid=np.array([o.centroid for o in objs], np.float64).reshape(-1, 3),
         object_extent_min=np.array([o.extent_min for o in objs], np.float64).reshape(-1, 3),
         object_extent_max=np.array([o.extent_max for o in objs], np.float64).reshape(-1, 3),
+        object_size=np.array([o.size for o in objs], np.float64).reshape(-1, 3),
         object_pixels=np.array([o.pixels for o in objs], np.int64),
     )
 
@@ -91,6 +96,7 @@ def load_truth(path: str | Path) -> list[FrameTruth]:
     """Read what `save_truth` wrote."""
     with np.load(path, allow_pickle=False) as z:
         d = {k: z[k] for k in z.files}
+    d.setdefault("object_size", np.full((len(d["object_id"]), 3), np.nan))  # version 1
     ends = np.cumsum(d["object_count"])
     starts = ends - d["object_count"]
     frames = []
@@ -103,6 +109,7 @@ def load_truth(path: str | Path) -> list[FrameTruth]:
                 d["object_centroid"][j],
                 d["object_extent_min"][j],
                 d["object_extent_max"][j],
+                d["object_size"][j],
                 int(d["object_pixels"][j]),
             )
             for j in range(a, b)

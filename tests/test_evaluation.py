@@ -62,7 +62,7 @@ def _scene():
         for oid, mask in ((1, _square(2, 1 + f)), (2, _square(10, 1 + f)), (3, _square(15, 15))):
             labels[mask] = oid
             c = np.array(_centroid(mask))
-            objs.append(ObjectTruth(oid, f"o{oid}", np.eye(4), c, c, c, int(mask.sum())))
+            objs.append(ObjectTruth(oid, f"o{oid}", np.eye(4), c, c, c, c, int(mask.sum())))
         truths.append(FrameTruth(f, f * 0.02, (0.0,) * 4, labels, np.ones((H, W), np.float32),
                                  tuple(objs)))  # fmt: skip
         tracks[f] = [{"id": 10 * o, "centroid": _centroid(labels == o)} for o in (1, 2, 3)]

@@ -23,7 +23,7 @@ def _truths(frames: int, shown: dict[int, object]) -> list[FrameTruth]:
         for oid, where in shown.items():
             labels[where] = oid
             z = np.zeros(3)
-            objects.append(ObjectTruth(oid, f"box-{oid}", np.eye(4), z, z, z,
+            objects.append(ObjectTruth(oid, f"box-{oid}", np.eye(4), z, z, z, z,
                                        int(np.count_nonzero(labels == oid))))  # fmt: skip
         out.append(FrameTruth(k, k / 50, (0.0, 0.0, 0.0, 0.0), labels,
                               np.ones((16, 24), np.float32), tuple(objects)))  # fmt: skip

@@ -12,7 +12,7 @@ from tofcut.sim import load_truth, open_scene, save_truth, scene_names
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import SceneError, load_scene, parse_scene, scene_toml
-from tofcut.sim.truth import truth_path
+from tofcut.sim.truth import ObjectTruth, truth_path
 
 BUILT_IN = [
     "belt-parts",
@@ -139,6 +139,26 @@ def test_labels_of_a_box_cover_its_projected_corners():
         assert -0.5 < corner.max() - got.max() < 1.5
     assert np.allclose(box.extent_min, corners.min(axis=0))
     assert np.allclose(box.extent_max, corners.max(axis=0))
+    assert np.allclose(box.size, [0.4, 0.3, 0.5])  # its own box, however turned
+
+
+def test_a_turned_objects_extent_is_half_its_own_boxs_diagonal():
+    # what every energy of `tofcut reproduce` and `tofcut bench` is given as the extent
+    from tofcut.tools.experiments.reproduce import extent_of
+
+    def box(rotation: str) -> ObjectTruth:
+        src = source_from(
+            ROOM + '[[object]]\nshape = "box"\nsize = [0.4, 0.3, 0.5]\n'
+            f"position = [-0.3, 2.0, 0.2]\nrotation_deg = {rotation}\n"
+        )
+        return src.truth_at(0.0).object(1)
+
+    straight, turned = box("[0, 0, 0]"), box("[10, 20, 30]")
+    half_diagonal = float(np.sqrt(0.4**2 + 0.3**2 + 0.5**2)) / 2.0
+    assert extent_of(straight) == pytest.approx(half_diagonal)
+    assert extent_of(turned) == pytest.approx(half_diagonal)
+    camera_box = float(np.linalg.norm(turned.extent_max - turned.extent_min)) / 2.0
+    assert camera_box > half_diagonal + 0.05  # what it was given before
 
 
 def test_boxes_ride_the_belt_enter_and_leave_and_the_scene_loops():
@@ -174,6 +194,11 @@ def test_truth_file_round_trips(tmp_path):
             assert (o.id, o.name, o.pixels) == (p.id, p.name, p.pixels)
             assert np.array_equal(o.pose, p.pose)
             assert np.array_equal(o.extent_max, p.extent_max)
+            assert np.array_equal(o.size, p.size)
+    with np.load(path) as z:  # a file written before sizes were kept still reads
+        old = {k: z[k] for k in z.files if k != "object_size"}
+    np.savez_compressed(path, **old)
+    assert all(np.isnan(o.size).all() for o in load_truth(path)[0].objects)
 
 
 def test_scene_file_mistakes_are_reported():

@@ -250,9 +250,10 @@ def frame_at(scene: str, seed: int) -> tuple[Frame, FrameTruth]:
 
 
 def extent_of(obj: ObjectTruth) -> float:
-    """An object's extent for `Target.extent_m`: half the diagonal of its true 3D box (what
-    a tracker knows of an object it follows)."""
-    return float(np.linalg.norm(obj.extent_max - obj.extent_min)) / 2.0
+    """An object's extent for `Target.extent_m`: half the diagonal of its own 3D box (what a
+    tracker knows of an object it follows), not of its box along the camera's axes, which
+    grows as the object turns."""
+    return float(np.linalg.norm(obj.size)) / 2.0
 
 
 def target_of(truth: FrameTruth, object_id: int) -> Target:
@@ -863,11 +864,11 @@ def write_report(out: Path, figures: Sequence[FigureResult], seeds: Sequence[int
         "",
         "µt, µb, β, σs, σi and the support plane are estimated from each frame (see "
         "`tofcut.tracker.paper.segment`); every energy is given a seed pixel deep inside the "
-        "object, its true centroid and its extent (half its true 3D box's diagonal), as a "
-        "tracker would, and reads what it needs. GrabCut (OpenCV, 5 iterations) is given a "
-        "box round the object grown by a quarter on every side, on an image of intensity, "
-        "range and amplitude. In the panels white is target found, red is found but not "
-        "target, blue is target missed.",
+        "object, its true centroid and its extent (half the diagonal of its own true 3D box, "
+        "the same however it is turned), as a tracker would, and reads what it needs. GrabCut "
+        "(OpenCV, 5 iterations) is given a box round the object grown by a quarter on every "
+        "side, on an image of intensity, range and amplitude. In the panels white is target "
+        "found, red is found but not target, blue is target missed.",
         "",
         f"What the verdicts mean: *segmented* is IoU ≥ {GOOD_IOU} in every seed; *fails* is a "
         f"mean IoU below {FAILED_IOU}; a look-alike is *segmented too* when on average at least "
