@@ -24,6 +24,11 @@ RECORD = 8
 """Bytes of a record's host time, before its frame."""
 
 
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a run that saves a default .rrd saves it here
+
+
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory) -> Path:
     """The emulated conveyor, recorded fast: 30 frames at 50 fps."""
