@@ -351,6 +351,23 @@ def test_the_compiled_median_is_numpys():
     assert np.isnan(stats_kernels.median(values))
 
 
+def test_whether_the_median_lies_above_a_value_is_the_compiled_medians_answer():
+    rng = np.random.default_rng(11)
+    near = [0.1, 0.19, 0.2, np.nextafter(0.2, 1.0), 0.21, 0.3]  # ties at and next to 0.2
+    for n in (0, 1, 2, 3, 4, 9, 10, 101, 1000):
+        for _ in range(30):
+            values = rng.choice(near, n)
+            values[: n // 2] = rng.random(n // 2) * 0.4
+            for x in (0.0, 0.2, 0.25, 1.0):
+                want = bool(n and stats_kernels.median(values) > x)
+                assert stats_kernels.median_above(values, x) == want
+    values = np.array([0.1, 0.3])  # half above 0.19 and 0.2: the two middle values' mean
+    assert stats_kernels.median_above(values, 0.19)
+    assert not stats_kernels.median_above(values, 0.2)
+    values[1] = np.nan
+    assert not stats_kernels.median_above(values, 0.0)
+
+
 def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():
     rng = np.random.default_rng(12)
     clouds = [rng.normal(size=(n, 3)) * [0.05, 0.1, 0.02] for n in (1, 7, 300, 401)]

@@ -1,5 +1,5 @@
-"""Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array,
-and 3×3 medians over an image.
+"""Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array
+(and whether it lies above a value), and 3×3 medians over an image.
 """
 
 from __future__ import annotations
@@ -51,6 +51,30 @@ def median(values: F64) -> float:
     for x in a[1 : n // 2]:
         lower = max(lower, x)
     return (lower + upper) / 2.0
+
+
+@kernel((F64_1D, 1.0))
+def median_above(values: F64, x: float) -> bool:
+    """`median(values) > x` (False on no value or a nan), in one pass and without a copy:
+    the middle value is above `x` where more than half the values are; of an even count,
+    with exactly half above, the two middle values are the largest not above and the
+    smallest above, and their mean, (a + b) / 2 as `median` takes it, is compared."""
+    n = values.size
+    above = 0
+    low, high = -np.inf, np.inf  # the largest value not above x, the smallest above
+    for y in values:
+        if np.isnan(y):
+            return False
+        if y > x:
+            above += 1
+            high = min(high, y)
+        else:
+            low = max(low, y)
+    if n == 0 or above < n - n // 2:
+        return False
+    if n % 2 or above > n // 2:
+        return True
+    return (low + high) / 2.0 > x
 
 
 @helper
