@@ -327,19 +327,22 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
         body = rng.random((h, w)) < rng.random()
         xyz = rng.normal(size=(h, w, 3)) * 0.02
         far = rng.integers(0, 3, (h, w)).astype(float)  # ties: the upper-left pixel goes
-        spread2 = rng.random((h, w)) * 1e-3
-        want = body.copy()
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
-                1e-3, spread2[a] + spread2[b]
+        noise = rng.random((h, w)) * 0.02
+        noise[rng.random((h, w)) < 0.05] = np.inf  # as at invalid pixels
+        for step_noise in (True, False):
+            spread2 = 9.0 * noise**2 if step_noise else np.zeros((h, w))
+            want = body.copy()
+            for dv, du in ((0, 1), (1, 0)):
+                a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
+                jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
+                    1e-3, spread2[a] + spread2[b]
+                )
+                jump &= body[a] | body[b]
+                want[a] &= ~(jump & (far[a] > far[b]))
+                want[b] &= ~(jump & ~(far[a] > far[b]))
+            np.testing.assert_array_equal(
+                pieces_kernels.cut_at_steps(body, xyz, far, 1e-3, noise, step_noise), want
             )
-            jump &= body[a] | body[b]
-            want[a] &= ~(jump & (far[a] > far[b]))
-            want[b] &= ~(jump & ~(far[a] > far[b]))
-        np.testing.assert_array_equal(
-            pieces_kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want
-        )
 
 
 def test_the_compiled_median_is_numpys():

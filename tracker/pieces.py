@@ -11,10 +11,7 @@ compiled (`pieces_kernels`, `components_kernels`).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-
-import numpy as np
 
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
@@ -85,9 +82,8 @@ class Pieces:
         their difference where that is more (a seed on a far, dark target); the pixel on the
         far side of such a step is left out."""
         quiet = quietened(frame, body, noise, self.params.connect_m)
-        spread2 = 9.0 * quiet.noise**2 if step_noise else _no_spread(frame.shape)
         body = pieces_kernels.cut_at_steps(
-            body, quiet.xyz, quiet.range, self.params.connect_m**2, spread2
+            body, quiet.xyz, quiet.range, self.params.connect_m**2, quiet.noise, step_noise
         )
         pieces: I32 = components_kernels.label_pieces(body)
         return self.by_tops(quiet.xyz, body, pieces, quiet.noise, belt)
@@ -116,9 +112,3 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
         frame.xyz, frame.range, rng, noise, loud, MEDIAN_NOISE_SHARE
     )
     return Quietened(xyz, rng, quiet)
-
-
-@functools.lru_cache(maxsize=4)
-def _no_spread(shape: tuple[int, int]) -> F64:
-    """`np.zeros(shape)`, made once (never written to)."""
-    return np.zeros(shape)

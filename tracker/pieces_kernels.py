@@ -8,11 +8,12 @@ from tofcut._types import F64, B
 from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
 
 
-@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D))
-def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
+@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D, True))
+def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, noise: F64, step_noise: bool) -> B:
     """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
-    of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
-    step, the pixel with the larger range is the far one)."""
+    of more than √step2 and, given `step_noise`, more than three times the noise of their
+    difference, √(9·noise² of the one + 9·noise² of the other) (of a step, the pixel with
+    the larger range is the far one)."""
     h, w = body.shape
     out = body.copy()
     for v0 in range(h):
@@ -30,7 +31,11 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
                 a = xyz[v, u, 0] - xyz[v2, u2, 0]
                 b = xyz[v, u, 1] - xyz[v2, u2, 1]
                 c = xyz[v, u, 2] - xyz[v2, u2, 2]
-                allowed = max(step2, spread2[v, u] + spread2[v2, u2])
+                if step_noise:  # 9.0 * noise**2 each, as numpy squares: n * n
+                    n1, n2 = noise[v, u], noise[v2, u2]
+                    allowed = max(step2, 9.0 * (n1 * n1) + 9.0 * (n2 * n2))
+                else:
+                    allowed = max(step2, 0.0)
                 if a**2 + b**2 + c**2 > allowed:
                     if rng[v, u] > rng[v2, u2]:
                         out[v, u] = False
