@@ -345,6 +345,33 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
             )
 
 
+def test_the_background_cost_weighs_the_nearness_as_the_background_model_does():
+    # BackgroundModel.weighed_nearness's numpy, then the cost of the scenery seen at
+    # model - nearer (as JointCut.background_cost passed it before the two were one pass)
+    rng = np.random.default_rng(13)
+    factor, loud_sigma, share, deadband, cap, unknown = 4.0, 0.05, 0.418, 1.0, 8.0, 3.0
+    for _ in range(40):
+        h, w = rng.integers(1, 25, 2)
+        model = rng.random((h, w)) + 1.0
+        sigma = rng.random((h, w)) * 0.025  # loud (4σ > 0.05) about half the time
+        known, valid = rng.random((2, h, w)) < 0.9
+        seen = model - rng.normal(size=(h, w)) * 0.05
+        seen[rng.random((h, w)) < 0.05] = np.nan
+        usable = valid & known
+        with np.errstate(invalid="ignore"):
+            nearer = np.where(usable, model - seen, 0.0)
+        loud = usable & (factor * sigma > loud_sigma)
+        nearer = np.where(loud, stats_kernels.median3_at(nearer, loud), nearer)
+        noise = np.where(loud, sigma * share, sigma)
+        with np.errstate(invalid="ignore"):
+            z = np.where(usable, (model - (model - nearer)) / noise, 0.0) - deadband
+        want = np.where(known, np.minimum(0.5 * np.maximum(z, 0.0) ** 2, cap), unknown)
+        got = cut_kernels.background_cost(
+            model, sigma, known, seen, valid, factor, loud_sigma, share, deadband, cap, unknown
+        )
+        np.testing.assert_array_equal(got, want)
+
+
 def test_the_compiled_median_is_numpys():
     rng = np.random.default_rng(10)
     for n in (1, 2, 3, 8, 9, 100, 6263, 6264):

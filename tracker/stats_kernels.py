@@ -133,26 +133,32 @@ def median3_at(values: F64, where: B) -> F64:
     window = np.empty(9)
     for v in range(h):
         for u in range(w):
-            if not where[v, u]:
-                continue
-            k = 0
-            nan = False
-            for dv in (-1, 0, 1):
-                for du in (-1, 0, 1):
-                    x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
-                    window[k] = x
-                    nan |= np.isnan(x)
-                    k += 1
-            if nan:
-                for k in range(9):
-                    _insert(window, k, window[k])
-                out[v, u] = window[4]
-                continue
-            out[v, u] = _median9(
-                window[0], window[1], window[2], window[3], window[4], window[5], window[6],
-                window[7], window[8],
-            )  # fmt: skip
+            if where[v, u]:
+                out[v, u] = median3(values, v, u, window)
     return out
+
+
+@helper
+def median3(values: F64, v: int, u: int, window: F64) -> float:
+    """The median of the 3×3 neighbourhood of (v, u) in `values`, edges repeated
+    (`median3_at`'s, `window` nine values' room to work in)."""
+    h, w = values.shape
+    k = 0
+    nan = False
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
+            window[k] = x
+            nan |= np.isnan(x)
+            k += 1
+    if nan:
+        for k in range(9):
+            _insert(window, k, window[k])
+        return float(window[4])
+    return _median9(
+        window[0], window[1], window[2], window[3], window[4], window[5], window[6], window[7],
+        window[8],
+    )  # fmt: skip
 
 
 @kernel((F64_2D, B_2D, B_2D))
