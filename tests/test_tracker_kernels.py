@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -22,8 +23,10 @@ from tofcut.tracker import (
     multicut,
     multicut_kernels,
     pieces_kernels,
+    reference,
     stats_kernels,
 )
+from tofcut.tracker.background import MEDIAN_NOISE_SHARE
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -370,6 +373,20 @@ def test_the_background_cost_weighs_the_nearness_as_the_background_model_does():
             model, sigma, known, seen, valid, factor, loud_sigma, share, deadband, cap, unknown
         )
         np.testing.assert_array_equal(got, want)
+
+
+def test_quieten_moves_the_loud_points_as_the_numpy_form_does():
+    rng = np.random.default_rng(14)
+    for _ in range(30):
+        h, w = rng.integers(1, 25, 2)
+        frame = SimpleNamespace(xyz=rng.normal(size=(h, w, 3)), range=rng.random((h, w)) + 0.5)
+        frame.range[rng.random((h, w)) < 0.1] = 0.0  # not moved along its ray
+        noise = rng.random((h, w)) * rng.choice([0.01, 0.02])  # none loud, or some
+        body = rng.random((h, w)) < 0.7
+        want = reference.quietened(frame, body, noise, 0.03)
+        got = pieces_kernels.quieten(frame.xyz, frame.range, noise, body, 0.03, MEDIAN_NOISE_SHARE)
+        for g, x in zip(got, (want.xyz, want.range, want.noise), strict=True):
+            np.testing.assert_array_equal(g, x)
 
 
 def test_the_compiled_median_is_numpys():

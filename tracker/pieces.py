@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import background_kernels, components_kernels, pieces_kernels, stats_kernels
+from tofcut.tracker import background_kernels, components_kernels, pieces_kernels
 from tofcut.tracker.background import (
     MEDIAN_NOISE_SHARE,
     BackgroundModel,
@@ -104,11 +104,7 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
     neighbours in `body` (a step between two objects stands out of that median's smaller
     noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
-    loud = body & (noise * 3.0 >= step_m)
-    if not loud.any():
-        return Quietened(frame.xyz, frame.range, noise)
-    rng = stats_kernels.median3_within(frame.range, body, loud)
-    xyz, quiet = pieces_kernels.quieten(
-        frame.xyz, frame.range, rng, noise, loud, MEDIAN_NOISE_SHARE
+    xyz, rng, quiet = pieces_kernels.quieten(
+        frame.xyz, frame.range, noise, body, step_m, MEDIAN_NOISE_SHARE
     )
     return Quietened(xyz, rng, quiet)
