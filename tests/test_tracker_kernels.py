@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from types import SimpleNamespace
 
 import numba
 import numpy as np
@@ -22,8 +23,10 @@ from tofcut.tracker import (
     multicut,
     multicut_kernels,
     pieces_kernels,
+    reference,
     stats_kernels,
 )
+from tofcut.tracker.background import MEDIAN_NOISE_SHARE
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -327,19 +330,63 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
         body = rng.random((h, w)) < rng.random()
         xyz = rng.normal(size=(h, w, 3)) * 0.02
         far = rng.integers(0, 3, (h, w)).astype(float)  # ties: the upper-left pixel goes
-        spread2 = rng.random((h, w)) * 1e-3
-        want = body.copy()
-        for dv, du in ((0, 1), (1, 0)):
-            a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
-            jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
-                1e-3, spread2[a] + spread2[b]
+        noise = rng.random((h, w)) * 0.02
+        noise[rng.random((h, w)) < 0.05] = np.inf  # as at invalid pixels
+        for step_noise in (True, False):
+            spread2 = 9.0 * noise**2 if step_noise else np.zeros((h, w))
+            want = body.copy()
+            for dv, du in ((0, 1), (1, 0)):
+                a, b = (slice(0, h - dv), slice(0, w - du)), (slice(dv, h), slice(du, w))
+                jump = np.sum((xyz[a] - xyz[b]) ** 2, axis=-1) > np.maximum(
+                    1e-3, spread2[a] + spread2[b]
+                )
+                jump &= body[a] | body[b]
+                want[a] &= ~(jump & (far[a] > far[b]))
+                want[b] &= ~(jump & ~(far[a] > far[b]))
+            np.testing.assert_array_equal(
+                pieces_kernels.cut_at_steps(body, xyz, far, 1e-3, noise, step_noise), want
             )
-            jump &= body[a] | body[b]
-            want[a] &= ~(jump & (far[a] > far[b]))
-            want[b] &= ~(jump & ~(far[a] > far[b]))
-        np.testing.assert_array_equal(
-            pieces_kernels.cut_at_steps(body, xyz, far, 1e-3, spread2), want
+
+
+def test_the_background_cost_weighs_the_nearness_as_the_background_model_does():
+    # BackgroundModel.weighed_nearness's numpy, then the cost of the scenery seen at
+    # model - nearer (as JointCut.background_cost passed it before the two were one pass)
+    rng = np.random.default_rng(13)
+    factor, loud_sigma, share, deadband, cap, unknown = 4.0, 0.05, 0.418, 1.0, 8.0, 3.0
+    for _ in range(40):
+        h, w = rng.integers(1, 25, 2)
+        model = rng.random((h, w)) + 1.0
+        sigma = rng.random((h, w)) * 0.025  # loud (4σ > 0.05) about half the time
+        known, valid = rng.random((2, h, w)) < 0.9
+        seen = model - rng.normal(size=(h, w)) * 0.05
+        seen[rng.random((h, w)) < 0.05] = np.nan
+        usable = valid & known
+        with np.errstate(invalid="ignore"):
+            nearer = np.where(usable, model - seen, 0.0)
+        loud = usable & (factor * sigma > loud_sigma)
+        nearer = np.where(loud, stats_kernels.median3_at(nearer, loud), nearer)
+        noise = np.where(loud, sigma * share, sigma)
+        with np.errstate(invalid="ignore"):
+            z = np.where(usable, (model - (model - nearer)) / noise, 0.0) - deadband
+        want = np.where(known, np.minimum(0.5 * np.maximum(z, 0.0) ** 2, cap), unknown)
+        got = cut_kernels.background_cost(
+            model, sigma, known, seen, valid, factor, loud_sigma, share, deadband, cap, unknown
         )
+        np.testing.assert_array_equal(got, want)
+
+
+def test_quieten_moves_the_loud_points_as_the_numpy_form_does():
+    rng = np.random.default_rng(14)
+    for _ in range(30):
+        h, w = rng.integers(1, 25, 2)
+        frame = SimpleNamespace(xyz=rng.normal(size=(h, w, 3)), range=rng.random((h, w)) + 0.5)
+        frame.range[rng.random((h, w)) < 0.1] = 0.0  # not moved along its ray
+        noise = rng.random((h, w)) * rng.choice([0.01, 0.02])  # none loud, or some
+        body = rng.random((h, w)) < 0.7
+        want = reference.quietened(frame, body, noise, 0.03)
+        got = pieces_kernels.quieten(frame.xyz, frame.range, noise, body, 0.03, MEDIAN_NOISE_SHARE)
+        for g, x in zip(got, (want.xyz, want.range, want.noise), strict=True):
+            np.testing.assert_array_equal(g, x)
 
 
 def test_the_compiled_median_is_numpys():
@@ -349,6 +396,23 @@ def test_the_compiled_median_is_numpys():
             assert stats_kernels.median(values) == np.median(values)
     values[1] = np.nan
     assert np.isnan(stats_kernels.median(values))
+
+
+def test_whether_the_median_lies_above_a_value_is_the_compiled_medians_answer():
+    rng = np.random.default_rng(11)
+    near = [0.1, 0.19, 0.2, np.nextafter(0.2, 1.0), 0.21, 0.3]  # ties at and next to 0.2
+    for n in (0, 1, 2, 3, 4, 9, 10, 101, 1000):
+        for _ in range(30):
+            values = rng.choice(near, n)
+            values[: n // 2] = rng.random(n // 2) * 0.4
+            for x in (0.0, 0.2, 0.25, 1.0):
+                want = bool(n and stats_kernels.median(values) > x)
+                assert stats_kernels.median_above(values, x) == want
+    values = np.array([0.1, 0.3])  # half above 0.19 and 0.2: the two middle values' mean
+    assert stats_kernels.median_above(values, 0.19)
+    assert not stats_kernels.median_above(values, 0.2)
+    values[1] = np.nan
+    assert not stats_kernels.median_above(values, 0.0)
 
 
 def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():

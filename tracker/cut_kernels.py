@@ -24,6 +24,7 @@ from tofcut.tracker.compiled import (
 )
 from tofcut.tracker.components_kernels import parts
 from tofcut.tracker.neighbours import DU, DV, FACTORS
+from tofcut.tracker.stats_kernels import median3
 
 
 @kernel((F64_3D, B_2D, B_2D, 1.0))
@@ -266,19 +267,31 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     return out
 
 
-@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, 1.0))
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0))
 def background_cost(
-    model: F64, sigma: F64, known: B, seen: F64, valid: B, deadband: float, cap: float,
-    unknown: float,
+    model: F64, sigma: F64, known: B, seen: F64, valid: B, noise_factor: float,
+    loud_sigma: float, share: float, deadband: float, cap: float, unknown: float,
 ) -> F64:  # fmt: skip
     """Each pixel's cost for the background (see `JointCut.background_cost`): half the
     square of how far it stands in front of the scenery, in noise sigmas, less the
-    deadband, at most `cap`; `unknown` where the scenery is not known."""
+    deadband, at most `cap`; `unknown` where the scenery is not known. How far and its
+    noise are `BackgroundModel.weighed_nearness`'s, by the same arithmetic: where
+    `noise_factor` sigmas are more than `loud_sigma`, the 3×3 median of the nearness and
+    `share` of the noise."""
     h, w = model.shape
-    out = np.empty((h, w))
+    nearer = np.empty((h, w))
     for v in range(h):
         for u in range(w):
-            z = (model[v, u] - seen[v, u]) / sigma[v, u] if valid[v, u] and known[v, u] else 0.0
+            nearer[v, u] = model[v, u] - seen[v, u] if valid[v, u] and known[v, u] else 0.0
+    out = np.empty((h, w))
+    window = np.empty(9)
+    for v in range(h):
+        for u in range(w):
+            usable = valid[v, u] and known[v, u]
+            near, s = nearer[v, u], sigma[v, u]
+            if usable and noise_factor * s > loud_sigma:
+                near, s = median3(nearer, v, u, window), s * share
+            z = (model[v, u] - (model[v, u] - near)) / s if usable else 0.0
             z = z - deadband
             z = z if (z >= 0.0 or z != z) else 0.0
             cost = 0.5 * z * z

@@ -11,15 +11,12 @@ compiled (`pieces_kernels`, `components_kernels`).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
-
-import numpy as np
 
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import background_kernels, components_kernels, pieces_kernels, stats_kernels
+from tofcut.tracker import background_kernels, components_kernels, pieces_kernels
 from tofcut.tracker.background import (
     MEDIAN_NOISE_SHARE,
     BackgroundModel,
@@ -85,9 +82,8 @@ class Pieces:
         their difference where that is more (a seed on a far, dark target); the pixel on the
         far side of such a step is left out."""
         quiet = quietened(frame, body, noise, self.params.connect_m)
-        spread2 = 9.0 * quiet.noise**2 if step_noise else _no_spread(frame.shape)
         body = pieces_kernels.cut_at_steps(
-            body, quiet.xyz, quiet.range, self.params.connect_m**2, spread2
+            body, quiet.xyz, quiet.range, self.params.connect_m**2, quiet.noise, step_noise
         )
         pieces: I32 = components_kernels.label_pieces(body)
         return self.by_tops(quiet.xyz, body, pieces, quiet.noise, belt)
@@ -108,17 +104,7 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
     neighbours in `body` (a step between two objects stands out of that median's smaller
     noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
-    loud = body & (noise * 3.0 >= step_m)
-    if not loud.any():
-        return Quietened(frame.xyz, frame.range, noise)
-    rng = stats_kernels.median3_within(frame.range, body, loud)
-    xyz, quiet = pieces_kernels.quieten(
-        frame.xyz, frame.range, rng, noise, loud, MEDIAN_NOISE_SHARE
+    xyz, rng, quiet = pieces_kernels.quieten(
+        frame.xyz, frame.range, noise, body, step_m, MEDIAN_NOISE_SHARE
     )
     return Quietened(xyz, rng, quiet)
-
-
-@functools.lru_cache(maxsize=4)
-def _no_spread(shape: tuple[int, int]) -> F64:
-    """`np.zeros(shape)`, made once (never written to)."""
-    return np.zeros(shape)

@@ -1,18 +1,22 @@
-"""What stands out, in pieces: the cut at 3D steps between neighbours, compiled (see
-`tofcut.tracker.compiled`).
+"""What stands out, in pieces: its loud ranges quietened and the cut at 3D steps between
+neighbours, compiled (see `tofcut.tracker.compiled`).
 """
 
 from __future__ import annotations
 
+import numpy as np
+
 from tofcut._types import F64, B
 from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
+from tofcut.tracker.stats_kernels import median3_within
 
 
-@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D))
-def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
+@kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D, True))
+def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, noise: F64, step_noise: bool) -> B:
     """`body` less every pixel on the far side of a 3D step to its right or lower neighbour
-    of more than √step2 and more than √(spread2 of the one + spread2 of the other) (of a
-    step, the pixel with the larger range is the far one)."""
+    of more than √step2 and, given `step_noise`, more than three times the noise of their
+    difference, √(9·noise² of the one + 9·noise² of the other) (of a step, the pixel with
+    the larger range is the far one)."""
     h, w = body.shape
     out = body.copy()
     for v0 in range(h):
@@ -30,7 +34,11 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
                 a = xyz[v, u, 0] - xyz[v2, u2, 0]
                 b = xyz[v, u, 1] - xyz[v2, u2, 1]
                 c = xyz[v, u, 2] - xyz[v2, u2, 2]
-                allowed = max(step2, spread2[v, u] + spread2[v2, u2])
+                if step_noise:  # 9.0 * noise**2 each, as numpy squares: n * n
+                    n1, n2 = noise[v, u], noise[v2, u2]
+                    allowed = max(step2, 9.0 * (n1 * n1) + 9.0 * (n2 * n2))
+                else:
+                    allowed = max(step2, 0.0)
                 if a**2 + b**2 + c**2 > allowed:
                     if rng[v, u] > rng[v2, u2]:
                         out[v, u] = False
@@ -39,15 +47,26 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, spread2: F64) -> B:
     return out
 
 
-@kernel((F64_3D, F64_2D, F64_2D, F64_2D, B_2D, 1.0))
+@kernel((F64_3D, F64_2D, F64_2D, B_2D, 1.0, 1.0))
 def quieten(
-    xyz: F64, rng: F64, median: F64, noise: F64, loud: B,
-    share: float,
-) -> tuple[F64, F64]:  # fmt: skip
-    """`tofcut.tracker.pieces.quietened`'s arithmetic: copies of `xyz` and `noise` where each
-    `loud` pixel's point is moved along its ray from range `rng` to `median` (not at range 0)
-    and its noise is times `share`."""
-    h, w = loud.shape
+    xyz: F64, rng: F64, noise: F64, body: B, step_m: float, share: float
+) -> tuple[F64, F64, F64]:
+    """`tofcut.tracker.pieces.quietened`'s arithmetic: where `body`'s pixels are loud (their
+    noise a third of `step_m` or more), each one's range is the median of its 3×3
+    neighbours in `body`, its point moved along its ray from the range it had to that one
+    (not at range 0), and its noise `share` of what it was; copies of `xyz`, `rng` and
+    `noise` so changed (the arrays themselves where none is loud)."""
+    h, w = body.shape
+    loud = np.zeros((h, w), np.bool_)
+    some = False
+    for v in range(h):
+        for u in range(w):
+            if body[v, u] and noise[v, u] * 3.0 >= step_m:
+                loud[v, u] = True
+                some = True
+    if not some:
+        return xyz, rng, noise
+    median = median3_within(rng, body, loud)
     out = xyz.copy()
     quiet = noise.copy()
     for v in range(h):
@@ -60,4 +79,4 @@ def quieten(
                 out[v, u, 0] *= ratio
                 out[v, u, 1] *= ratio
                 out[v, u, 2] *= ratio
-    return out, quiet
+    return out, median, quiet

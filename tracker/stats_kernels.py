@@ -1,5 +1,5 @@
-"""Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array,
-and 3×3 medians over an image.
+"""Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array
+(and whether it lies above a value), and 3×3 medians over an image.
 """
 
 from __future__ import annotations
@@ -51,6 +51,30 @@ def median(values: F64) -> float:
     for x in a[1 : n // 2]:
         lower = max(lower, x)
     return (lower + upper) / 2.0
+
+
+@kernel((F64_1D, 1.0))
+def median_above(values: F64, x: float) -> bool:
+    """`median(values) > x` (False on no value or a nan), in one pass and without a copy:
+    the middle value is above `x` where more than half the values are; of an even count,
+    with exactly half above, the two middle values are the largest not above and the
+    smallest above, and their mean, (a + b) / 2 as `median` takes it, is compared."""
+    n = values.size
+    above = 0
+    low, high = -np.inf, np.inf  # the largest value not above x, the smallest above
+    for y in values:
+        if np.isnan(y):
+            return False
+        if y > x:
+            above += 1
+            high = min(high, y)
+        else:
+            low = max(low, y)
+    if n == 0 or above < n - n // 2:
+        return False
+    if n % 2 or above > n // 2:
+        return True
+    return (low + high) / 2.0 > x
 
 
 @helper
@@ -109,26 +133,32 @@ def median3_at(values: F64, where: B) -> F64:
     window = np.empty(9)
     for v in range(h):
         for u in range(w):
-            if not where[v, u]:
-                continue
-            k = 0
-            nan = False
-            for dv in (-1, 0, 1):
-                for du in (-1, 0, 1):
-                    x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
-                    window[k] = x
-                    nan |= np.isnan(x)
-                    k += 1
-            if nan:
-                for k in range(9):
-                    _insert(window, k, window[k])
-                out[v, u] = window[4]
-                continue
-            out[v, u] = _median9(
-                window[0], window[1], window[2], window[3], window[4], window[5], window[6],
-                window[7], window[8],
-            )  # fmt: skip
+            if where[v, u]:
+                out[v, u] = median3(values, v, u, window)
     return out
+
+
+@helper
+def median3(values: F64, v: int, u: int, window: F64) -> float:
+    """The median of the 3×3 neighbourhood of (v, u) in `values`, edges repeated
+    (`median3_at`'s, `window` nine values' room to work in)."""
+    h, w = values.shape
+    k = 0
+    nan = False
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            x = values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)]
+            window[k] = x
+            nan |= np.isnan(x)
+            k += 1
+    if nan:
+        for k in range(9):
+            _insert(window, k, window[k])
+        return float(window[4])
+    return _median9(
+        window[0], window[1], window[2], window[3], window[4], window[5], window[6], window[7],
+        window[8],
+    )  # fmt: skip
 
 
 @kernel((F64_2D, B_2D, B_2D))

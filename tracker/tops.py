@@ -48,7 +48,7 @@ def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     if not where.any():
         return where
     steep, *ratios = tops_kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
-    if any(r.size and stats_kernels.median(r) > MAX_SLOPE_NOISE for r in ratios):
+    if any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return None
     up: B = where & ~steep
     return up
