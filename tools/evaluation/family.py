@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from tofcut.driver.belt import KnownBelt
 from tofcut.driver.capture import CaptureReader
 from tofcut.driver.errors import TofcutError
 from tofcut.sim.device import EmulatedCamera
@@ -218,9 +219,11 @@ class LineResult:
                 **({"retried": self.retried} if self.retried else {})}  # fmt: skip
 
 
-def _line_facts(plan: Plan, seed: int) -> tuple[int, str]:
-    """The line's length in frames (from the emulated camera's frame rate) and its summary."""
+def _line_facts(plan: Plan, seed: int) -> tuple[int, str, KnownBelt | None]:
+    """The line's length in frames (from the emulated camera's frame rate), its summary and
+    its belt (None where the scene has none)."""
     source = scene_source(plan.scene(seed), seed)
+    belt = source.belt if isinstance(source, SceneSource) else None
     registers = source.settings.registers if isinstance(source, SceneSource) else None
     period_us = EmulatedCamera(source, realtime=False, registers=registers).frame_period_us
     frames = plan.frames if plan.frames is not None else round(plan.seconds * 1e6 / period_us)
@@ -228,7 +231,7 @@ def _line_facts(plan: Plan, seed: int) -> tuple[int, str]:
     summary = str(meta.get("scene", plan.scene(seed)))
     if "belt" in meta:
         summary += f", belt {meta['belt']['speed_mps']:.2f} m/s"
-    return max(1, frames), summary
+    return max(1, frames), summary, belt
 
 
 def _complete(capture: Path, marker: Path, wanted: dict[str, Any]) -> bool:
@@ -271,12 +274,10 @@ def prepare_line(plan: Plan, seed: int) -> tuple[LineResult, list[FrameTruth]]:
     """Record (or reuse) one line: the line with no runs yet, and its ground truth."""
     folder = plan.folder / f"seed-{seed}"
     folder.mkdir(parents=True, exist_ok=True)
-    frames, summary = _line_facts(plan, seed)
+    frames, summary, belt = _line_facts(plan, seed)
     capture = record_line(plan, seed, frames, folder)
     truths = load_truth(truth_path(capture))
     seen = {o.id for t in truths for o in t.objects if o.pixels >= plan.min_pixels}
-    source = scene_source(plan.scene(seed), seed)
-    belt = source.belt if isinstance(source, SceneSource) else None
     noise = belt_noise(capture, truths[0], belt.geometry) if belt and truths else None
     line = LineResult(seed, plan.source(seed), f"{summary}, {len(seen)} objects", frames)
     return replace(line, belt_noise_m=noise), truths
