@@ -26,10 +26,10 @@ from tofcut.tracker import (
     reference,
     stats_kernels,
 )
-from tofcut.tracker.background import MEDIAN_NOISE_SHARE
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
+from tofcut.tracker.pieces import MEDIAN_SHARES, STEP_APART
 from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
 
@@ -381,10 +381,13 @@ def test_quieten_moves_the_loud_points_as_the_numpy_form_does():
         h, w = rng.integers(1, 25, 2)
         frame = SimpleNamespace(xyz=rng.normal(size=(h, w, 3)), range=rng.random((h, w)) + 0.5)
         frame.range[rng.random((h, w)) < 0.1] = 0.0  # not moved along its ray
-        noise = rng.random((h, w)) * rng.choice([0.01, 0.02])  # none loud, or some
+        # none loud, or some (3×3), or some very loud (up to 7×7 windows)
+        noise = rng.random((h, w)) * rng.choice([0.01, 0.02, 0.06])
         body = rng.random((h, w)) < 0.7
         want = reference.quietened(frame, body, noise, 0.03)
-        got = pieces_kernels.quieten(frame.xyz, frame.range, noise, body, 0.03, MEDIAN_NOISE_SHARE)
+        got = pieces_kernels.quieten(
+            frame.xyz, frame.range, noise, body, 0.03, MEDIAN_SHARES, STEP_APART
+        )
         for g, x in zip(got, (want.xyz, want.range, want.noise), strict=True):
             np.testing.assert_array_equal(g, x)
 

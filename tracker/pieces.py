@@ -4,7 +4,8 @@ A mask (what stands out of the scenery and no track took, or all the tracks' mas
 where neighbours are farther apart in 3D than `connect_m` (touching objects of different
 heights come apart; one object's pixels stay together), or, given the range noise, than three
 times the noise of their difference where that is more; in loud noise, on the median of each
-pixel's 3×3 neighbours within the mask. Rigid objects on a known belt: a piece holding two
+pixel's neighbours within the mask, over a window that grows with the noise (3×3 to 7×7)
+until a step stands out of it. Rigid objects on a known belt: a piece holding two
 tops at different heights is two objects (`tofcut.tracker.tops`). The per-pixel loops are
 compiled (`pieces_kernels`, `components_kernels`).
 """
@@ -12,6 +13,8 @@ compiled (`pieces_kernels`, `components_kernels`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
 
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
@@ -25,6 +28,14 @@ from tofcut.tracker.background import (
 )
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.tops import facing_up, split_by_tops
+
+MEDIAN_SHARES = np.array([1.0, MEDIAN_NOISE_SHARE, 0.251, 0.179])
+"""By radius r, the noise of the median of (2r+1)² independent readings as a share of one
+reading's, √(π/2)/(2r+1): the window of `quietened` is at most 7×7."""
+STEP_APART = 4.0
+"""A loud pixel's median window grows until a step of `connect_m` is this many times the
+quietened noise: a step between two objects in 2–3 cm of noise (a dark box far away) stands
+out of a 5×5 median, where a 3×3 one leaves the box's own top broken into specks."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,10 +112,11 @@ class Pieces:
 
 def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     """The points, ranges and noise of `body` for finding its surfaces: where the range noise
-    is a third of a `step_m` step or more, each pixel's range is the median of its 3×3
-    neighbours in `body` (a step between two objects stands out of that median's smaller
-    noise; pixel by pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
+    is a third of a `step_m` step or more, each pixel's range is the median of its
+    neighbours in `body`, over the smallest window that leaves a step `STEP_APART` times its
+    noise (a step between two objects stands out of that median's smaller noise; pixel by
+    pixel it is lost in the noise). Elsewhere the frame's, unchanged."""
     xyz, rng, quiet = pieces_kernels.quieten(
-        frame.xyz, frame.range, noise, body, step_m, MEDIAN_NOISE_SHARE
+        frame.xyz, frame.range, noise, body, step_m, MEDIAN_SHARES, STEP_APART
     )
     return Quietened(xyz, rng, quiet)

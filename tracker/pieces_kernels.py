@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from tofcut._types import F64, B
-from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
-from tofcut.tracker.stats_kernels import median3_within
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, kernel
+from tofcut.tracker.stats_kernels import median_within
 
 
 @kernel((B_2D, F64_3D, F64_2D, 1.0, F64_2D, True))
@@ -47,33 +47,39 @@ def cut_at_steps(body: B, xyz: F64, rng: F64, step2: float, noise: F64, step_noi
     return out
 
 
-@kernel((F64_3D, F64_2D, F64_2D, B_2D, 1.0, 1.0))
+@kernel((F64_3D, F64_2D, F64_2D, B_2D, 1.0, F64_1D, 1.0))
 def quieten(
-    xyz: F64, rng: F64, noise: F64, body: B, step_m: float, share: float
+    xyz: F64, rng: F64, noise: F64, body: B, step_m: float, shares: F64, apart: float
 ) -> tuple[F64, F64, F64]:
     """`tofcut.tracker.pieces.quietened`'s arithmetic: where `body`'s pixels are loud (their
-    noise a third of `step_m` or more), each one's range is the median of its 3×3
-    neighbours in `body`, its point moved along its ray from the range it had to that one
-    (not at range 0), and its noise `share` of what it was; copies of `xyz`, `rng` and
-    `noise` so changed (the arrays themselves where none is loud)."""
+    noise a third of `step_m` or more), each one's range is the median of its neighbours in
+    `body` within the smallest radius r (1 to len(shares) − 1) that brings its noise times
+    `shares[r]` below `step_m` / `apart` (the largest where none does), its point moved along
+    its ray from the range it had to that one (not at range 0), and its noise so shared;
+    copies of `xyz`, `rng` and `noise` so changed (the arrays themselves where none is loud)."""
     h, w = body.shape
-    loud = np.zeros((h, w), np.bool_)
+    radius = np.zeros((h, w), np.int64)
+    top = shares.size - 1
     some = False
     for v in range(h):
         for u in range(w):
             if body[v, u] and noise[v, u] * 3.0 >= step_m:
-                loud[v, u] = True
+                r = 1
+                while r < top and noise[v, u] * shares[r] * apart >= step_m:
+                    r += 1
+                radius[v, u] = r
                 some = True
     if not some:
         return xyz, rng, noise
-    median = median3_within(rng, body, loud)
+    median = median_within(rng, body, radius)
     out = xyz.copy()
     quiet = noise.copy()
     for v in range(h):
         for u in range(w):
-            if not loud[v, u]:
+            r = radius[v, u]
+            if r == 0:
                 continue
-            quiet[v, u] *= share
+            quiet[v, u] *= shares[r]
             if rng[v, u] != 0:
                 ratio = median[v, u] / rng[v, u]
                 out[v, u, 0] *= ratio

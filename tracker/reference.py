@@ -19,11 +19,9 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import stats_kernels
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
     BLEND_VARIANCE_SHARE,
-    MEDIAN_NOISE_SHARE,
     BackgroundModel,
     near_any,
     on_belt_height,
@@ -35,7 +33,7 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
 from tofcut.tracker.noise import FIT_STRIDE
 from tofcut.tracker.params import TrackerParams
-from tofcut.tracker.pieces import Pieces, Quietened
+from tofcut.tracker.pieces import MEDIAN_SHARES, STEP_APART, Pieces, Quietened
 from tofcut.tracker.stats import MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker
 
@@ -331,14 +329,21 @@ def _solve_by_parts(unary: F64, i: I64, j: I64, w: F64, ties: F64) -> I64:
 
 
 def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
-    """`tofcut.tracker.pieces.quietened` in plain numpy."""
+    """`tofcut.tracker.pieces.quietened` in plain numpy (each window's median by numpy)."""
     loud = body & (noise * 3.0 >= step_m)
     if not loud.any():
         return Quietened(frame.xyz, frame.range, noise)
-    rng = stats_kernels.median3_within(frame.range, body, loud)
+    radius = np.where(loud, 1, 0)
+    for r in range(2, MEDIAN_SHARES.size):
+        radius[loud & (noise * MEDIAN_SHARES[r - 1] * STEP_APART >= step_m)] = r
+    rng = frame.range.copy()
+    for v, u in zip(*np.nonzero(loud), strict=True):
+        r = radius[v, u]
+        rows, cols = slice(max(v - r, 0), v + r + 1), slice(max(u - r, 0), u + r + 1)
+        rng[v, u] = np.median(frame.range[rows, cols][body[rows, cols]])
     moved = loud & (frame.range != 0)
     xyz = frame.xyz.copy()
     xyz[moved] *= (rng[moved] / frame.range[moved])[:, None]
     quiet = noise.copy()
-    quiet[loud] *= MEDIAN_NOISE_SHARE
+    quiet[loud] *= MEDIAN_SHARES[radius[loud]]
     return Quietened(xyz, rng, quiet)

@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import F64, B
-from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, helper, kernel
+from tofcut._types import F64, I64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, I64_2D, helper, kernel
 
 
 @helper
@@ -161,25 +161,24 @@ def median3(values: F64, v: int, u: int, window: F64) -> float:
     )  # fmt: skip
 
 
-@kernel((F64_2D, B_2D, B_2D))
-def median3_within(values: F64, where: B, loud: B) -> F64:
-    """`values` with each pixel of `where` that is `loud` replaced by the median of its 3×3
-    neighbours in `where` (itself included): one surface's noise quietened without taking
-    in what lies beyond its edge."""
+@kernel((F64_2D, B_2D, I64_2D))
+def median_within(values: F64, where: B, radius: I64) -> F64:
+    """`values` with each pixel of `where` whose `radius` r is 1 or more replaced by the
+    median of its (2r+1)×(2r+1) neighbours in `where` (itself included): one surface's noise
+    quietened without taking in what lies beyond its edge."""
     h, w = values.shape
     out = values.copy()
-    window = np.empty(9)
+    window = np.empty((2 * max(int(radius.max()) if radius.size else 0, 1) + 1) ** 2)
     for v in range(h):
         for u in range(w):
-            if not (where[v, u] and loud[v, u]):
+            r = radius[v, u]
+            if not (where[v, u] and r > 0):
                 continue
             k = 0
-            for dv in (-1, 0, 1):
-                for du in (-1, 0, 1):
-                    y, x = v + dv, u + du
-                    if not (0 <= y < h and 0 <= x < w and where[y, x]):
-                        continue
-                    _insert(window, k, values[y, x])
-                    k += 1
+            for y in range(max(v - r, 0), min(v + r + 1, h)):
+                for x in range(max(u - r, 0), min(u + r + 1, w)):
+                    if where[y, x]:
+                        _insert(window, k, values[y, x])
+                        k += 1
             out[v, u] = window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2])
     return out
