@@ -122,7 +122,7 @@ def test_an_object_in_front_of_scenery_whose_phase_wrapped_round_stands_out():
     lifted = dataclasses.replace(belt, point=belt.point + 0.1 * belt.normal, width_m=None)
     box = _reading(frame, rays, lifted.range_along(rays), wrapped)  # 10 cm above the belt
     assert model.standing_out(box)[wrapped].all()
-    nearer, _ = model.weighed_nearness(box)
+    nearer = model.range - model.seen_range(box)
     assert (nearer[wrapped] > 0.5).all()
 
     # the wrapped floor again, and the belt itself read behind wrapped scenery: no object

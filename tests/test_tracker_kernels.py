@@ -349,7 +349,7 @@ def test_cut_at_steps_leaves_out_what_the_numpy_form_does():
 
 
 def test_the_background_cost_weighs_the_nearness_as_the_background_model_does():
-    # BackgroundModel.weighed_nearness's numpy, then the cost of the scenery seen at
+    # reference.weighed_nearness's numpy, then the cost of the scenery seen at
     # model - nearer (as JointCut.background_cost passed it before the two were one pass)
     rng = np.random.default_rng(13)
     factor, loud_sigma, share, deadband, cap, unknown = 4.0, 0.05, 0.418, 1.0, 8.0, 3.0

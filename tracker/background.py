@@ -24,7 +24,7 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import background_kernels, stats_kernels
+from tofcut.tracker import background_kernels
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.neighbours import EIGHT
 
@@ -292,28 +292,6 @@ class BackgroundModel:
         seen = frame.range.copy()
         seen[rows, cols] = self.range[rows, cols] - behind[rows, cols]
         return seen
-
-    def weighed_nearness(self, frame: Frame, seen: F64 | None = None) -> tuple[F64, F64]:
-        """What the background's cost weighs: each pixel's nearness (metres in front of the
-        scenery, 0 where unknown or invalid; `seen_range`) and its noise; where the noise is
-        so loud that the lowest object (`min_height_sigmas`) would not stand out pixel by
-        pixel, the median of the 3×3 neighbourhood instead (a step's edge stays where it is),
-        with that median's smaller noise. `seen`: the frame's `seen_range`, where the caller
-        has it."""
-        if seen is None:
-            seen = self.seen_range(frame)
-        usable = frame.valid & self.known
-        with np.errstate(invalid="ignore"):
-            nearer = np.where(usable, self.range - seen, 0.0)
-        p = self.params
-        loud = usable & (p.noise_factor * self.sigma > p.min_height_sigmas * p.min_height_m)
-        if not loud.any():
-            return nearer, self.sigma
-        median = stats_kernels.median3_at(nearer, loud)
-        return (
-            np.where(loud, median, nearer),
-            np.where(loud, self.sigma * MEDIAN_NOISE_SHARE, self.sigma),
-        )
 
     def update(
         self,

@@ -275,7 +275,7 @@ def background_cost(
     """Each pixel's cost for the background (see `JointCut.background_cost`): half the
     square of how far it stands in front of the scenery, in noise sigmas, less the
     deadband, at most `cap`; `unknown` where the scenery is not known. How far and its
-    noise are `BackgroundModel.weighed_nearness`'s, by the same arithmetic: where
+    noise are `reference.weighed_nearness`'s, by the same arithmetic: where
     `noise_factor` sigmas are more than `loud_sigma`, the 3×3 median of the nearness and
     `share` of the noise."""
     h, w = model.shape

@@ -19,9 +19,11 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
+from tofcut.tracker import stats_kernels
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
     BLEND_VARIANCE_SHARE,
+    MEDIAN_NOISE_SHARE,
     BackgroundModel,
     near_any,
     on_belt_height,
@@ -209,10 +211,31 @@ class ReferenceCut(JointCut):
         bg = background
         if not bg.ready:
             return np.full(frame.shape, p.unknown_cost)
-        nearer, sigma = bg.weighed_nearness(frame, seen)
+        nearer, sigma = weighed_nearness(bg, frame, seen)
         z = np.maximum(nearer / sigma - p.deadband, 0.0)
         cost = np.minimum(0.5 * z * z, p.background_cap)
         return np.where(bg.known, cost, p.unknown_cost)
+
+
+def weighed_nearness(bg: BackgroundModel, frame: Frame, seen: F64) -> tuple[F64, F64]:
+    """What the background's cost weighs (`cut_kernels.background_cost` does it in one
+    pass): each pixel's nearness (metres in front of the scenery, 0 where unknown or
+    invalid; `seen`: the frame's `BackgroundModel.seen_range`) and its noise; where the noise
+    is so loud that the lowest object (`min_height_sigmas`) would not stand out pixel by
+    pixel, the median of the 3×3 neighbourhood instead (a step's edge stays where it is),
+    with that median's smaller noise."""
+    usable = frame.valid & bg.known
+    with np.errstate(invalid="ignore"):
+        nearer = np.where(usable, bg.range - seen, 0.0)
+    p = bg.params
+    loud = usable & (p.noise_factor * bg.sigma > p.min_height_sigmas * p.min_height_m)
+    if not loud.any():
+        return nearer, bg.sigma
+    median = stats_kernels.median3_at(nearer, loud)
+    return (
+        np.where(loud, median, nearer),
+        np.where(loud, bg.sigma * MEDIAN_NOISE_SHARE, bg.sigma),
+    )
 
 
 @_replacing(Pieces)
