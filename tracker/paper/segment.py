@@ -221,7 +221,14 @@ def segment(
     """Segment one target in one frame by minimising `energy` (full-frame graph if
     `reference`, else the fast exact solver)."""
     return segment_arrays(
-        frame.intensity, frame.xyz, frame.valid, target, energy, params, reference=reference
+        frame.intensity,
+        frame.xyz,
+        frame.valid,
+        target,
+        energy,
+        params,
+        reference=reference,
+        amplitude=frame.amplitude,
     )
 
 
@@ -234,13 +241,19 @@ def segment_arrays(
     params: SegmentParams | None = None,
     *,
     reference: bool = False,
+    amplitude: F64 | None = None,
 ) -> Segmentation:
-    """`segment` on bare arrays: intensity (H, W), camera points (H, W, 3), valid (H, W)."""
+    """`segment` on bare arrays: intensity (H, W), camera points (H, W, 3), valid (H, W);
+    SUPPORT reads the amplitude (H, W) on the outline (None: the intensity stands in)."""
     start = time.perf_counter()
     params = params or SegmentParams()
     if not isinstance(energy, Energy):
         raise SegmentError(f"energy must be an Energy, not {energy!r}")
     _check_arrays(intensity, xyz, valid)
+    if amplitude is not None and amplitude.shape != intensity.shape:
+        raise SegmentError(
+            f"amplitude {amplitude.shape} does not match the intensity {intensity.shape}"
+        )
     model = estimate_model(intensity, xyz, valid, target, energy, params)
     problem = build_problem(intensity, xyz, valid, energy, params, model)
     if reference:
@@ -253,7 +266,8 @@ def segment_arrays(
     if energy is Energy.SUPPORT:
         reach = params.connect_factor * model.sigma_s
         part = sp.reached(labels, xyz, valid, model.pixel, reach)
-        labels = sp.with_mixed_outline(part, labels, xyz, valid, intensity)
+        strength = intensity if amplitude is None else amplitude
+        labels = sp.with_mixed_outline(part, labels, xyz, valid, strength)
     value = en.energy_of(labels, problem.cost1, problem.cost0, problem.weights)
     return Segmentation(
         labels,

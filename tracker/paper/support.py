@@ -15,8 +15,8 @@ edges are eq. (8)'s, times `support_weight`, and the seed is tied to the target.
 the part of the minimum that reaches the seed through neighbours whose 3D distance is below
 `connect_factor` × σs: the energy says "above the support", the range says "which object".
 The pixels of the minimum on that part's outline which the step cut off are mixed pixels
-(they see the object and what is behind it) and are kept when most of them is the object
-(`with_mixed_outline`).
+(they see the object and what is behind it) and are kept when most of them is the object,
+as their range and amplitude tell (`with_mixed_outline`).
 """
 
 from __future__ import annotations
@@ -50,6 +50,9 @@ MAX_NOISE_RATIO = 1.5
 thick holds slices of several surfaces (or a far, dark one no object stands on)."""
 RANSAC_SEED = 0
 """RANSAC's random numbers: the same frame gives the same planes."""
+TWO_STEPS = np.ones((5, 5), bool)
+"""The pixels within two steps of one (what lies behind an outline pixel hemmed in by the
+mask)."""
 
 
 @dataclass(frozen=True)
@@ -188,33 +191,41 @@ def reached(mask: B, xyz: F64, valid: B, seed: tuple[int, int], reach_m: float) 
     return out
 
 
-def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, brightness: F64) -> B:
+def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, strength: F64) -> B:
     """`part` and the pixels of `mask` round it that are mostly `part`'s object.
 
-    A pixel on the outline of an object in front of something else sees both; its range is
-    the mix of the two returns, each weighted by its share of the pixel and its strength.
-    With r_in, b_in the mean range and brightness of its neighbours in `part`, and r_out,
-    b_out those of its neighbours outside `mask` (what is behind), t = (r − r_out) /
-    (r_in − r_out) is the object's weight in the mix, and its share of the pixel is over
-    one half when t·b_out > (1 − t)·b_in. `brightness` stands in for the strength of each
-    return (the frame's intensity). A pixel with no neighbour outside `mask` is kept."""
+    A pixel on the outline of an object in front of something else sees both: its signal is
+    the sum of the two returns, a·A_in + (1 − a)·A_out, a the object's share of the pixel,
+    and its range their mix weighted by those strengths. With r_in the mean range of its
+    neighbours in `part` and r_out, A_out the mean range and strength of what is behind (its
+    neighbours outside `mask`; if none, the pixels two steps from `part` round it), t = (r −
+    r_out) / (r_in − r_out) is the object's weight in the mix, so the background's share is
+    1 − a = (1 − t)·A / A_out, A the pixel's own strength: the object's own strength at the
+    pixel, which falls where its surface turns away at the outline, is never needed. The
+    pixel is kept when a > 1/2. `strength` is the frame's amplitude (or a stand-in for it)."""
     rng = np.where(valid, np.linalg.norm(xyz, axis=-1), 0.0)  # invalid ranges never count
-    inside, behind = part & valid, ~mask & valid
-    r_in, b_in, _ = _neighbour_means(inside, rng, brightness)
-    r_out, b_out, n_out = _neighbour_means(behind, rng, brightness)
+    near = ndimage.binary_dilation(part, EIGHT)
+    r_in, _, _ = _neighbour_means(part & valid, rng, strength, EIGHT)
+    r_out, a_out, n_out = _neighbour_means(~mask & valid, rng, strength, EIGHT)
+    r_far, a_far, n_far = _neighbour_means(~near & valid, rng, strength, TWO_STEPS)
+    alone = n_out == 0
+    r_out = np.where(alone, r_far, r_out)
+    a_out = np.where(alone, a_far, a_out)
     step = r_in - r_out
     t = np.clip((rng - r_out) / np.where(step != 0.0, step, 1.0), 0.0, 1.0)
-    ring = ndimage.binary_dilation(part, EIGHT) & mask & valid & ~part
-    out: B = part | (ring & ((n_out == 0) | (t * b_out > (1.0 - t) * b_in)))
+    seen_behind = (n_out > 0) | (n_far > 0)
+    mostly_in = 2.0 * (1.0 - t) * strength < a_out
+    ring = near & mask & valid & ~part
+    out: B = part | (ring & seen_behind & mostly_in)
     return out
 
 
-def _neighbour_means(where: B, rng: F64, brightness: F64) -> tuple[F64, F64, F64]:
-    """Each pixel's mean range and brightness over its 8 neighbours in `where`, and their
-    number (the means are 0 where there is none)."""
-    kernel = EIGHT.astype(np.float64)
+def _neighbour_means(where: B, rng: F64, strength: F64, window: B) -> tuple[F64, F64, F64]:
+    """Each pixel's mean range and strength over the pixels of `where` in `window` round it,
+    and their number (the means are 0 where there is none)."""
+    kernel = window.astype(np.float64)
     count = ndimage.convolve(where.astype(np.float64), kernel, mode="constant")
     share = 1.0 / np.maximum(count, 1.0)
     r = ndimage.convolve(np.where(where, rng, 0.0), kernel, mode="constant") * share
-    b = ndimage.convolve(np.where(where, brightness, 0.0), kernel, mode="constant") * share
-    return r, b, count
+    a = ndimage.convolve(np.where(where, strength, 0.0), kernel, mode="constant") * share
+    return r, a, count
