@@ -45,7 +45,8 @@ class Energy(enum.Enum):
     """§4.2 with eq. (8): as RANGE_SMOOTH, edges weighted by range and intensity."""
     SUPPORT = "support"
     """Beyond the paper: eq. (8)'s edges and a unary cost from the height above the plane
-    the seed stands on (`tofcut.tracker.paper.support`), for objects touching a support."""
+    the seed stands on (`tofcut.tracker.paper.support`), for objects touching a support;
+    given the target's extent, objects touching the target are cut off at concave creases."""
 
     @property
     def seeded(self) -> bool:
@@ -138,6 +139,12 @@ class SegmentParams:
     z_t/2 above the support is neutral)."""
     connect_factor: float = 4.0
     """SUPPORT: neighbours closer than this × σs in 3D join the seed's part of the mask."""
+    crease_scale: float = 0.25
+    """SUPPORT with a target's extent: the concavity τ at which an edge of the seed's part
+    weighs e^−½ of a flat one (`tofcut.tracker.paper.support.apart_at_creases`)."""
+    inside_cost: float = 0.5
+    """SUPPORT with a target's extent: the cost of cutting off a pixel of the seed's part
+    within the extent of the target's centre (one beyond twice the extent costs 1 to keep)."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -148,6 +155,7 @@ class SegmentParams:
             "support_cap",
             "support_height",
             "connect_factor",
+            "inside_cost",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -156,7 +164,8 @@ class SegmentParams:
             math.isfinite(self.beta_range) and self.beta_range >= 0.0
         ):
             raise SegmentError(f"beta_range must be a finite number ≥ 0, not {self.beta_range!r}")
-        for name in ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor", "beta_factor"):
+        names = ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor", "beta_factor")
+        for name in (*names, "crease_scale"):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0.0):
                 raise SegmentError(f"{name} must be a finite number > 0, not {value!r}")
@@ -266,6 +275,18 @@ def segment_arrays(
     if energy is Energy.SUPPORT:
         reach = params.connect_factor * model.sigma_s
         part = sp.reached(labels, xyz, valid, model.pixel, reach)
+        if target.extent_m is not None:
+            part = sp.apart_at_creases(
+                part,
+                xyz,
+                model.pixel,
+                np.asarray(model.mu_d),
+                model.extent_m + 2.0 * model.range_noise_m,
+                reach,
+                params.crease_scale,
+                params.support_weight,
+                params.inside_cost,
+            )
         strength = intensity if amplitude is None else amplitude
         labels = sp.with_mixed_outline(part, labels, xyz, valid, strength)
     value = en.energy_of(labels, problem.cost1, problem.cost0, problem.weights)

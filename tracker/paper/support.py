@@ -30,6 +30,8 @@ from scipy.sparse.csgraph import connected_components
 
 from tofcut._types import F64, I64, B
 from tofcut.tracker.neighbours import EIGHT, OFFSETS, pair_slices
+from tofcut.tracker.paper.energy import range_weights
+from tofcut.tracker.paper.graphcut import Problem, solve_reduced
 from tofcut.tracker.stats import robust_sigma
 
 MIN_SHARE = 0.08
@@ -50,6 +52,9 @@ MAX_NOISE_RATIO = 1.5
 thick holds slices of several surfaces (or a far, dark one no object stands on)."""
 RANSAC_SEED = 0
 """RANSAC's random numbers: the same frame gives the same planes."""
+NORMAL_WINDOW = 2
+"""Half-size of the window of points whose plane gives a pixel's surface normal (5×5: the
+range noise of one pixel would turn a smaller one's normal by tens of degrees)."""
 TWO_STEPS = np.ones((5, 5), bool)
 """The pixels within two steps of one (what lies behind an outline pixel hemmed in by the
 mask)."""
@@ -189,6 +194,82 @@ def reached(mask: B, xyz: F64, valid: B, seed: tuple[int, int], reach_m: float) 
     u, v = seed
     out: B = mask & (parts.reshape(h, w) == parts[v * w + u])
     return out
+
+
+def surface_normals(xyz: F64, where: B, half: int = NORMAL_WINDOW) -> tuple[F64, F64]:
+    """(H, W, 3) mean point and unit normal (towards the camera) of the plane fitted to the
+    points of `where` in the (2·half + 1)² window round each pixel (the normal is +z where
+    the window holds fewer than three of them)."""
+    size = 2 * half + 1
+    share = ndimage.uniform_filter(where.astype(np.float64), size, mode="constant")
+    inv = 1.0 / np.maximum(share, 1e-12)
+    pts = np.where(where[..., None], xyz, 0.0)
+    mean = np.stack(
+        [ndimage.uniform_filter(pts[..., i], size, mode="constant") * inv for i in range(3)], -1
+    )
+    cov = np.empty((*where.shape, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            prod = ndimage.uniform_filter(pts[..., i] * pts[..., j], size, mode="constant")
+            cov[..., i, j] = cov[..., j, i] = prod * inv - mean[..., i] * mean[..., j]
+    few = share * size**2 < 2.5
+    cov[few] = np.diag([1.0, 1.0, 0.0])
+    normal = np.linalg.eigh(cov)[1][..., :, 0]
+    normal *= np.where((normal * mean).sum(axis=-1) > 0.0, -1.0, 1.0)[..., None]
+    return mean, normal
+
+
+def concavity(mean: F64, normal: F64) -> F64:
+    """(4, H, W) along `OFFSETS`: (n_q − n_p)·(x_q − x_p) / |x_q − x_p| of neighbours p, q
+    (mean points x, normals n towards the camera): positive where the surface bends away
+    from the camera between them (a convex edge, or a curved face), negative at a concave
+    crease, where one surface meets another (the local convexity criterion of Stein et
+    al., "Object partitioning using local convexity", CVPR 2014); 0 off the frame."""
+    out = np.zeros((len(OFFSETS), *mean.shape[:2]))
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices(mean.shape[:2], k)
+        step = mean[sq] - mean[sp]
+        turn = ((normal[sq] - normal[sp]) * step).sum(axis=-1)
+        out[k][sp] = turn / np.maximum(np.linalg.norm(step, axis=-1), 1e-12)
+    return out
+
+
+def apart_at_creases(
+    part: B,
+    xyz: F64,
+    seed: tuple[int, int],
+    centre: F64,
+    extent_m: float,
+    reach_m: float,
+    crease_scale: float,
+    weight: float,
+    inside_cost: float,
+) -> B:
+    """The pixels of `part` that stay with the seed (u, v) when objects that touch it are
+    cut off where they meet it, at concave creases.
+
+    Objects of one height standing side by side, or a box against a taller one, are
+    joined in range and above the support alike; where their surfaces meet the surface
+    folds concavely, while an object's own faces meet at convex edges. A cut on `part`
+    alone: edges weigh `weight` × exp(−D²/2(reach/2)²) × exp(−c²/2τ²) at a concavity c < 0
+    (`concavity`, τ = `crease_scale`), so a crease costs little to cut along; a pixel
+    within the target's extent R of its centre costs `inside_cost` to drop, and one beyond
+    costs up to 1 to keep, reached at 2R (no point of the object can lie farther from its
+    centroid than its own size). An object's own concave joints (an arm's elbow) lie
+    within 2R, and what lies there is kept unless it is cheaper to cut off."""
+    mean, normal = surface_normals(xyz, part)
+    fold = np.exp(-(np.minimum(concavity(mean, normal), 0.0) ** 2) / (2.0 * crease_scale**2))
+    weights = weight * range_weights(xyz, part, reach_m / 2.0) * fold
+    distance = np.linalg.norm(xyz - centre, axis=-1)
+    beyond = np.clip((distance - extent_m) / extent_m, 0.0, 1.0)
+    cost1 = np.where(part, beyond, 0.0)
+    cost0 = np.where(part & (distance <= extent_m), inside_cost, 0.0)
+    forced = float(weights.sum() + cost1.sum() + cost0.sum()) + 1.0  # more than any cut saves
+    cost1[~part] = forced
+    u, v = seed
+    cost1[v, u], cost0[v, u] = 0.0, forced
+    labels: B = solve_reduced(Problem(cost1, cost0, weights)).labels & part
+    return labels
 
 
 def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, strength: F64) -> B:
