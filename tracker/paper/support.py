@@ -17,6 +17,10 @@ the part of the minimum that reaches the seed through neighbours whose 3D distan
 The pixels of the minimum on that part's outline which the step cut off are mixed pixels
 (they see the object and what is behind it) and are kept when most of them is the object,
 as their range and amplitude tell (`with_mixed_outline`).
+
+Given the target's extent, objects that touch it are cut off where they meet it: there the
+surface folds concavely, while an object's own faces meet at convex edges
+(`apart_at_creases`).
 """
 
 from __future__ import annotations
@@ -53,8 +57,7 @@ thick holds slices of several surfaces (or a far, dark one no object stands on).
 RANSAC_SEED = 0
 """RANSAC's random numbers: the same frame gives the same planes."""
 NORMAL_WINDOW = 2
-"""Half-size of the window of points whose plane gives a pixel's surface normal (5×5: the
-range noise of one pixel would turn a smaller one's normal by tens of degrees)."""
+"""Half-size of the window of points whose plane gives a pixel's surface normal (5×5)."""
 TWO_STEPS = np.ones((5, 5), bool)
 """The pixels within two steps of one (what lies behind an outline pixel hemmed in by the
 mask)."""
@@ -248,27 +251,34 @@ def apart_at_creases(
     """The pixels of `part` that stay with the seed (u, v) when objects that touch it are
     cut off where they meet it, at concave creases.
 
-    Objects of one height standing side by side, or a box against a taller one, are
-    joined in range and above the support alike; where their surfaces meet the surface
-    folds concavely, while an object's own faces meet at convex edges. A cut on `part`
+    Objects that touch, a box beside a taller one or before one behind it, are joined in
+    range and above the support alike; where the surface passes from one to the other it
+    folds concavely, while an object's own faces meet at convex edges (faces of two objects
+    that meet flush, in one plane, show no crease and stay joined). A cut on `part`
     alone: edges weigh `weight` × exp(−D²/2(reach/2)²) × exp(−c²/2τ²) at a concavity c < 0
     (`concavity`, τ = `crease_scale`), so a crease costs little to cut along; a pixel
     within the target's extent R of its centre costs `inside_cost` to drop, and one beyond
     costs up to 1 to keep, reached at 2R (no point of the object can lie farther from its
     centroid than its own size). An object's own concave joints (an arm's elbow) lie
     within 2R, and what lies there is kept unless it is cheaper to cut off."""
-    mean, normal = surface_normals(xyz, part)
+    rows, cols = np.nonzero(part)
+    margin = NORMAL_WINDOW + 1  # the windows round the part's pixels, and their neighbours
+    v0, u0 = max(int(rows.min()) - margin, 0), max(int(cols.min()) - margin, 0)
+    box = np.s_[v0 : int(rows.max()) + margin + 1, u0 : int(cols.max()) + margin + 1]
+    inner, points = part[box], xyz[box]
+    mean, normal = surface_normals(points, inner)
     fold = np.exp(-(np.minimum(concavity(mean, normal), 0.0) ** 2) / (2.0 * crease_scale**2))
-    weights = weight * range_weights(xyz, part, reach_m / 2.0) * fold
-    distance = np.linalg.norm(xyz - centre, axis=-1)
+    weights = weight * range_weights(points, inner, reach_m / 2.0) * fold
+    distance = np.linalg.norm(points - centre, axis=-1)
     beyond = np.clip((distance - extent_m) / extent_m, 0.0, 1.0)
-    cost1 = np.where(part, beyond, 0.0)
-    cost0 = np.where(part & (distance <= extent_m), inside_cost, 0.0)
+    cost1 = np.where(inner, beyond, 0.0)
+    cost0 = np.where(inner & (distance <= extent_m), inside_cost, 0.0)
     forced = float(weights.sum() + cost1.sum() + cost0.sum()) + 1.0  # more than any cut saves
-    cost1[~part] = forced
+    cost1[~inner] = forced
     u, v = seed
-    cost1[v, u], cost0[v, u] = 0.0, forced
-    labels: B = solve_reduced(Problem(cost1, cost0, weights)).labels & part
+    cost1[v - v0, u - u0], cost0[v - v0, u - u0] = 0.0, forced
+    labels: B = np.zeros_like(part)
+    labels[box] = solve_reduced(Problem(cost1, cost0, weights)).labels & inner
     return labels
 
 
