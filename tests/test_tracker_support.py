@@ -88,27 +88,49 @@ def test_only_the_part_of_the_minimum_that_reaches_the_seed_is_kept():
     assert np.array_equal(kept, expected)
 
 
-def test_a_mixed_pixel_on_the_outline_goes_to_the_side_that_fills_most_of_it():
-    # a bar 1 m away in front of a wall 2 m away; column 3 holds mixed pixels between them
+def mixed(share: float, strength_in: float, strength_out: float) -> tuple[float, float]:
+    """Range and strength of a pixel `share` of which sees a bar 1 m away (of strength
+    `strength_in` there) and the rest a wall 2 m away: the two returns summed."""
+    a_in, a_out = share * strength_in, (1.0 - share) * strength_out
+    return (a_in * 1.0 + a_out * 2.0) / (a_in + a_out), a_in + a_out
+
+
+def bar_before_wall(shares: list[float], strength_in: float, strength_out: float):
+    """Three rows: the bar in columns 0-2, mixed pixels of the given bar shares in column 3,
+    the wall behind in 4-5; the strength is 1 on the bar, `strength_out` on the wall."""
     xyz = np.zeros((3, 6, 3))
     xyz[..., 2] = 2.0
     xyz[:, :3, 2] = 1.0
-    xyz[:, 3, 2] = [1.3, 1.5, 1.7]  # 70 %, 50 %, 30 % of the range step is the bar's
-    brightness = np.ones((3, 6))
+    strength = np.ones((3, 6))
+    strength[:, 4:] = strength_out
+    for row, share in enumerate(shares):
+        xyz[row, 3, 2], strength[row, 3] = mixed(share, strength_in, strength_out)
     part = np.zeros((3, 6), bool)
     part[:, :3] = True
-    mask = part.copy()
-    mask[:, 3] = True  # the cut took the whole column
+    return xyz, strength, part
+
+
+def test_a_mixed_pixel_on_the_outline_goes_to_the_side_that_fills_most_of_it():
+    shares = [0.7, 0.6, 0.4]
     valid = np.ones((3, 6), bool)
-    kept = sp.with_mixed_outline(part, mask, xyz, valid, brightness)
-    assert kept[:, 3].tolist() == [True, False, False]
-    assert kept[:, :3].all()
-    assert not kept[:, 4:].any()
-    # a wall four times as bright weighs four times as much in the mix: at 50 % of the
-    # step, the bar fills 4/5 of the pixel; at 70 % of the step behind, still 4/7
-    brightness[:, 4:] = 4.0
-    kept = sp.with_mixed_outline(part, mask, xyz, valid, brightness)
-    assert kept[:, 3].tolist() == [True, True, True]
+    for strength_in, strength_out in ((1.0, 1.0), (1.0, 4.0), (0.2, 1.0)):
+        # the wall as strong as the bar, four times stronger, or the bar's surface turned
+        # away at its outline so that it returns a fifth of what its inside does: the
+        # pixel's own strength tells the shares apart whatever the bar returns there
+        xyz, strength, part = bar_before_wall(shares, strength_in, strength_out)
+        mask = part.copy()
+        mask[:, 3] = True  # the cut took the whole column
+        kept = sp.with_mixed_outline(part, mask, xyz, valid, strength)
+        assert kept[:, 3].tolist() == [True, True, False], (strength_in, strength_out)
+        assert kept[:, :3].all()
+        assert not kept[:, 4:].any()
+        # the cut took the wall next to the column too: what is behind is read two steps off
+        mask[:, 4] = True
+        assert np.array_equal(sp.with_mixed_outline(part, mask, xyz, valid, strength), kept)
+        # nothing valid seen behind: no evidence the column is the bar's
+        hidden = valid.copy()
+        hidden[:, 4:] = False
+        assert np.array_equal(sp.with_mixed_outline(part, mask, xyz, hidden, strength), part)
 
 
 def test_beta_follows_the_extent_the_noise_and_the_contrast():
@@ -163,3 +185,11 @@ def test_premise_scenes_give_the_paper_its_result_and_the_hard_ones_need_the_sup
         assert iou(paper.mask, mask) > 0.9
     else:
         assert iou(paper.mask, mask) < 0.2
+
+
+def test_an_amplitude_of_another_size_is_refused():
+    intensity, xyz, valid, _ = box_on_floor(np.random.default_rng(0))
+    with pytest.raises(SegmentError, match="amplitude"):
+        segment_arrays(
+            intensity, xyz, valid, Target(pixel=(40, 30)), Energy.SUPPORT, amplitude=np.ones((2, 2))
+        )

@@ -24,9 +24,9 @@ CASES: tuple[tuple[str, str, Energy, int], ...] = (
     ("robot", "robot", Energy.SUPPORT, 5),
 )
 """(scene, object, energy, repetitions): the data-term cut around the object's true centroid
-and extent (what the tracker does with its prediction), the §4.2 cuts and the support
-energy from a seed deep inside it. The hammer's §4.2 cut is the worst case: the weights
-join the hammer to the whole belt."""
+and extent (what the tracker does with its prediction), the §4.2 cuts from a seed deep
+inside it, and the support energy from both (as `tofcut reproduce` gives it). The hammer's
+§4.2 cut is the worst case: the weights join the hammer to the whole belt."""
 
 
 def kind_of(energy: Energy) -> str:
@@ -37,9 +37,14 @@ def kind_of(energy: Energy) -> str:
 
 
 def case_target(truth: FrameTruth, obj: ObjectTruth, energy: Energy) -> Target:
-    """A case's target: a seed deep inside the object for the energies grown from one, its
-    true centroid and extent for the data terms."""
-    if energy.from_seed:
-        return Target(pixel=deepest_pixel(truth.labels == obj.id))
+    """A case's target: a seed deep inside the object for §4.2's energies, its true centroid
+    and extent for the data terms, all three for the support energy."""
+    pixel = deepest_pixel(truth.labels == obj.id)
+    if energy.seeded:
+        return Target(pixel=pixel)
     x, y, z = (float(c) for c in obj.centroid)
-    return Target(point=(x, y, z), extent_m=extent_of(obj))
+    return Target(
+        pixel=pixel if energy is Energy.SUPPORT else None,
+        point=(x, y, z),
+        extent_m=extent_of(obj),
+    )

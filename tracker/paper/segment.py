@@ -45,7 +45,8 @@ class Energy(enum.Enum):
     """§4.2 with eq. (8): as RANGE_SMOOTH, edges weighted by range and intensity."""
     SUPPORT = "support"
     """Beyond the paper: eq. (8)'s edges and a unary cost from the height above the plane
-    the seed stands on (`tofcut.tracker.paper.support`), for objects touching a support."""
+    the seed stands on (`tofcut.tracker.paper.support`), for objects touching a support;
+    given the target's extent, objects touching the target are cut off at concave creases."""
 
     @property
     def seeded(self) -> bool:
@@ -138,6 +139,12 @@ class SegmentParams:
     z_t/2 above the support is neutral)."""
     connect_factor: float = 4.0
     """SUPPORT: neighbours closer than this × σs in 3D join the seed's part of the mask."""
+    crease_scale: float = 0.25
+    """SUPPORT with a target's extent: the concavity τ at which an edge of the seed's part
+    weighs e^−½ of a flat one (`tofcut.tracker.paper.support.apart_at_creases`)."""
+    inside_cost: float = 0.5
+    """SUPPORT with a target's extent: the cost of cutting off a pixel of the seed's part
+    within the extent of the target's centre (one beyond twice the extent costs 1 to keep)."""
 
     def __post_init__(self) -> None:
         for name in (
@@ -148,6 +155,7 @@ class SegmentParams:
             "support_cap",
             "support_height",
             "connect_factor",
+            "inside_cost",
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0.0):
@@ -156,7 +164,8 @@ class SegmentParams:
             math.isfinite(self.beta_range) and self.beta_range >= 0.0
         ):
             raise SegmentError(f"beta_range must be a finite number ≥ 0, not {self.beta_range!r}")
-        for name in ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor", "beta_factor"):
+        names = ("sigma_s", "sigma_i", "sigma_s_factor", "sigma_i_factor", "beta_factor")
+        for name in (*names, "crease_scale"):
             value = getattr(self, name)
             if value is not None and not (math.isfinite(value) and value > 0.0):
                 raise SegmentError(f"{name} must be a finite number > 0, not {value!r}")
@@ -221,7 +230,14 @@ def segment(
     """Segment one target in one frame by minimising `energy` (full-frame graph if
     `reference`, else the fast exact solver)."""
     return segment_arrays(
-        frame.intensity, frame.xyz, frame.valid, target, energy, params, reference=reference
+        frame.intensity,
+        frame.xyz,
+        frame.valid,
+        target,
+        energy,
+        params,
+        reference=reference,
+        amplitude=frame.amplitude,
     )
 
 
@@ -234,13 +250,19 @@ def segment_arrays(
     params: SegmentParams | None = None,
     *,
     reference: bool = False,
+    amplitude: F64 | None = None,
 ) -> Segmentation:
-    """`segment` on bare arrays: intensity (H, W), camera points (H, W, 3), valid (H, W)."""
+    """`segment` on bare arrays: intensity (H, W), camera points (H, W, 3), valid (H, W);
+    SUPPORT reads the amplitude (H, W) on the outline (None: the intensity stands in)."""
     start = time.perf_counter()
     params = params or SegmentParams()
     if not isinstance(energy, Energy):
         raise SegmentError(f"energy must be an Energy, not {energy!r}")
     _check_arrays(intensity, xyz, valid)
+    if amplitude is not None and amplitude.shape != intensity.shape:
+        raise SegmentError(
+            f"amplitude {amplitude.shape} does not match the intensity {intensity.shape}"
+        )
     model = estimate_model(intensity, xyz, valid, target, energy, params)
     problem = build_problem(intensity, xyz, valid, energy, params, model)
     if reference:
@@ -253,7 +275,20 @@ def segment_arrays(
     if energy is Energy.SUPPORT:
         reach = params.connect_factor * model.sigma_s
         part = sp.reached(labels, xyz, valid, model.pixel, reach)
-        labels = sp.with_mixed_outline(part, labels, xyz, valid, intensity)
+        if target.extent_m is not None:
+            part = sp.apart_at_creases(
+                part,
+                xyz,
+                model.pixel,
+                np.asarray(model.mu_d),
+                model.extent_m + 2.0 * model.range_noise_m,
+                reach,
+                params.crease_scale,
+                params.support_weight,
+                params.inside_cost,
+            )
+        strength = intensity if amplitude is None else amplitude
+        labels = sp.with_mixed_outline(part, labels, xyz, valid, strength)
     value = en.energy_of(labels, problem.cost1, problem.cost0, problem.weights)
     return Segmentation(
         labels,

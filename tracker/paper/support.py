@@ -15,8 +15,12 @@ edges are eq. (8)'s, times `support_weight`, and the seed is tied to the target.
 the part of the minimum that reaches the seed through neighbours whose 3D distance is below
 `connect_factor` × σs: the energy says "above the support", the range says "which object".
 The pixels of the minimum on that part's outline which the step cut off are mixed pixels
-(they see the object and what is behind it) and are kept when most of them is the object
-(`with_mixed_outline`).
+(they see the object and what is behind it) and are kept when most of them is the object,
+as their range and amplitude tell (`with_mixed_outline`).
+
+Given the target's extent, objects that touch it are cut off where they meet it: there the
+surface folds concavely, while an object's own faces meet at convex edges
+(`apart_at_creases`).
 """
 
 from __future__ import annotations
@@ -30,6 +34,8 @@ from scipy.sparse.csgraph import connected_components
 
 from tofcut._types import F64, I64, B
 from tofcut.tracker.neighbours import EIGHT, OFFSETS, pair_slices
+from tofcut.tracker.paper.energy import range_weights
+from tofcut.tracker.paper.graphcut import Problem, solve_reduced
 from tofcut.tracker.stats import robust_sigma
 
 MIN_SHARE = 0.08
@@ -50,6 +56,11 @@ MAX_NOISE_RATIO = 1.5
 thick holds slices of several surfaces (or a far, dark one no object stands on)."""
 RANSAC_SEED = 0
 """RANSAC's random numbers: the same frame gives the same planes."""
+NORMAL_WINDOW = 2
+"""Half-size of the window of points whose plane gives a pixel's surface normal (5×5)."""
+TWO_STEPS = np.ones((5, 5), bool)
+"""The pixels within two steps of one (what lies behind an outline pixel hemmed in by the
+mask)."""
 
 
 @dataclass(frozen=True)
@@ -188,33 +199,124 @@ def reached(mask: B, xyz: F64, valid: B, seed: tuple[int, int], reach_m: float) 
     return out
 
 
-def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, brightness: F64) -> B:
-    """`part` and the pixels of `mask` round it that are mostly `part`'s object.
+def surface_normals(xyz: F64, where: B, half: int = NORMAL_WINDOW) -> tuple[F64, F64]:
+    """(H, W, 3) mean point and unit normal (towards the camera) of the plane fitted to the
+    points of `where` in the (2·half + 1)² window round each pixel (the normal is +z where
+    the window holds fewer than three of them)."""
+    size = 2 * half + 1
+    share = ndimage.uniform_filter(where.astype(np.float64), size, mode="constant")
+    inv = 1.0 / np.maximum(share, 1e-12)
+    pts = np.where(where[..., None], xyz, 0.0)
+    mean = np.stack(
+        [ndimage.uniform_filter(pts[..., i], size, mode="constant") * inv for i in range(3)], -1
+    )
+    cov = np.empty((*where.shape, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            prod = ndimage.uniform_filter(pts[..., i] * pts[..., j], size, mode="constant")
+            cov[..., i, j] = cov[..., j, i] = prod * inv - mean[..., i] * mean[..., j]
+    few = share * size**2 < 2.5
+    cov[few] = np.diag([1.0, 1.0, 0.0])
+    normal = np.linalg.eigh(cov)[1][..., :, 0]
+    normal *= np.where((normal * mean).sum(axis=-1) > 0.0, -1.0, 1.0)[..., None]
+    return mean, normal
 
-    A pixel on the outline of an object in front of something else sees both; its range is
-    the mix of the two returns, each weighted by its share of the pixel and its strength.
-    With r_in, b_in the mean range and brightness of its neighbours in `part`, and r_out,
-    b_out those of its neighbours outside `mask` (what is behind), t = (r − r_out) /
-    (r_in − r_out) is the object's weight in the mix, and its share of the pixel is over
-    one half when t·b_out > (1 − t)·b_in. `brightness` stands in for the strength of each
-    return (the frame's intensity). A pixel with no neighbour outside `mask` is kept."""
-    rng = np.where(valid, np.linalg.norm(xyz, axis=-1), 0.0)  # invalid ranges never count
-    inside, behind = part & valid, ~mask & valid
-    r_in, b_in, _ = _neighbour_means(inside, rng, brightness)
-    r_out, b_out, n_out = _neighbour_means(behind, rng, brightness)
-    step = r_in - r_out
-    t = np.clip((rng - r_out) / np.where(step != 0.0, step, 1.0), 0.0, 1.0)
-    ring = ndimage.binary_dilation(part, EIGHT) & mask & valid & ~part
-    out: B = part | (ring & ((n_out == 0) | (t * b_out > (1.0 - t) * b_in)))
+
+def concavity(mean: F64, normal: F64) -> F64:
+    """(4, H, W) along `OFFSETS`: (n_q − n_p)·(x_q − x_p) / |x_q − x_p| of neighbours p, q
+    (mean points x, normals n towards the camera): positive where the surface bends away
+    from the camera between them (a convex edge, or a curved face), negative at a concave
+    crease, where one surface meets another (the local convexity criterion of Stein et
+    al., "Object partitioning using local convexity", CVPR 2014); 0 off the frame."""
+    out = np.zeros((len(OFFSETS), *mean.shape[:2]))
+    for k in range(len(OFFSETS)):
+        sp, sq = pair_slices(mean.shape[:2], k)
+        step = mean[sq] - mean[sp]
+        turn = ((normal[sq] - normal[sp]) * step).sum(axis=-1)
+        out[k][sp] = turn / np.maximum(np.linalg.norm(step, axis=-1), 1e-12)
     return out
 
 
-def _neighbour_means(where: B, rng: F64, brightness: F64) -> tuple[F64, F64, F64]:
-    """Each pixel's mean range and brightness over its 8 neighbours in `where`, and their
-    number (the means are 0 where there is none)."""
-    kernel = EIGHT.astype(np.float64)
+def apart_at_creases(
+    part: B,
+    xyz: F64,
+    seed: tuple[int, int],
+    centre: F64,
+    extent_m: float,
+    reach_m: float,
+    crease_scale: float,
+    weight: float,
+    inside_cost: float,
+) -> B:
+    """The pixels of `part` that stay with the seed (u, v) when objects that touch it are
+    cut off where they meet it, at concave creases.
+
+    Objects that touch, a box beside a taller one or before one behind it, are joined in
+    range and above the support alike; where the surface passes from one to the other it
+    folds concavely, while an object's own faces meet at convex edges (faces of two objects
+    that meet flush, in one plane, show no crease and stay joined). A cut on `part`
+    alone: edges weigh `weight` × exp(−D²/2(reach/2)²) × exp(−c²/2τ²) at a concavity c < 0
+    (`concavity`, τ = `crease_scale`), so a crease costs little to cut along; a pixel
+    within the target's extent R of its centre costs `inside_cost` to drop, and one beyond
+    costs up to 1 to keep, reached at 2R (no point of the object can lie farther from its
+    centroid than its own size). An object's own concave joints (an arm's elbow) lie
+    within 2R, and what lies there is kept unless it is cheaper to cut off."""
+    rows, cols = np.nonzero(part)
+    margin = NORMAL_WINDOW + 1  # the windows round the part's pixels, and their neighbours
+    v0, u0 = max(int(rows.min()) - margin, 0), max(int(cols.min()) - margin, 0)
+    box = np.s_[v0 : int(rows.max()) + margin + 1, u0 : int(cols.max()) + margin + 1]
+    inner, points = part[box], xyz[box]
+    mean, normal = surface_normals(points, inner)
+    fold = np.exp(-(np.minimum(concavity(mean, normal), 0.0) ** 2) / (2.0 * crease_scale**2))
+    weights = weight * range_weights(points, inner, reach_m / 2.0) * fold
+    distance = np.linalg.norm(points - centre, axis=-1)
+    beyond = np.clip((distance - extent_m) / extent_m, 0.0, 1.0)
+    cost1 = np.where(inner, beyond, 0.0)
+    cost0 = np.where(inner & (distance <= extent_m), inside_cost, 0.0)
+    forced = float(weights.sum() + cost1.sum() + cost0.sum()) + 1.0  # more than any cut saves
+    cost1[~inner] = forced
+    u, v = seed
+    cost1[v - v0, u - u0], cost0[v - v0, u - u0] = 0.0, forced
+    labels: B = np.zeros_like(part)
+    labels[box] = solve_reduced(Problem(cost1, cost0, weights)).labels & inner
+    return labels
+
+
+def with_mixed_outline(part: B, mask: B, xyz: F64, valid: B, strength: F64) -> B:
+    """`part` and the pixels of `mask` round it that are mostly `part`'s object.
+
+    A pixel on the outline of an object in front of something else sees both: its signal is
+    the sum of the two returns, a·A_in + (1 − a)·A_out, a the object's share of the pixel,
+    and its range their mix weighted by those strengths. With r_in the mean range of its
+    neighbours in `part` and r_out, A_out the mean range and strength of what is behind (its
+    neighbours outside `mask`; if none, the pixels two steps from `part` round it), t = (r −
+    r_out) / (r_in − r_out) is the object's weight in the mix, so the background's share is
+    1 − a = (1 − t)·A / A_out, A the pixel's own strength: the object's own strength at the
+    pixel, which falls where its surface turns away at the outline, is never needed. The
+    pixel is kept when a > 1/2. `strength` is the frame's amplitude (or a stand-in for it)."""
+    rng = np.where(valid, np.linalg.norm(xyz, axis=-1), 0.0)  # invalid ranges never count
+    near = ndimage.binary_dilation(part, EIGHT)
+    r_in, _, _ = _neighbour_means(part & valid, rng, strength, EIGHT)
+    r_out, a_out, n_out = _neighbour_means(~mask & valid, rng, strength, EIGHT)
+    r_far, a_far, n_far = _neighbour_means(~near & valid, rng, strength, TWO_STEPS)
+    alone = n_out == 0
+    r_out = np.where(alone, r_far, r_out)
+    a_out = np.where(alone, a_far, a_out)
+    step = r_in - r_out
+    t = np.clip((rng - r_out) / np.where(step != 0.0, step, 1.0), 0.0, 1.0)
+    seen_behind = (n_out > 0) | (n_far > 0)
+    mostly_in = 2.0 * (1.0 - t) * strength < a_out
+    ring = near & mask & valid & ~part
+    out: B = part | (ring & seen_behind & mostly_in)
+    return out
+
+
+def _neighbour_means(where: B, rng: F64, strength: F64, window: B) -> tuple[F64, F64, F64]:
+    """Each pixel's mean range and strength over the pixels of `where` in `window` round it,
+    and their number (the means are 0 where there is none)."""
+    kernel = window.astype(np.float64)
     count = ndimage.convolve(where.astype(np.float64), kernel, mode="constant")
     share = 1.0 / np.maximum(count, 1.0)
     r = ndimage.convolve(np.where(where, rng, 0.0), kernel, mode="constant") * share
-    b = ndimage.convolve(np.where(where, brightness, 0.0), kernel, mode="constant") * share
-    return r, b, count
+    a = ndimage.convolve(np.where(where, strength, 0.0), kernel, mode="constant") * share
+    return r, a, count
