@@ -1,10 +1,10 @@
 """Raw taps → phase, amplitude, intensity, range, validity and points (spec §7), vectorised.
 
 `demodulate` is the fast path every caller uses; `demodulate_reference` transcribes spec §7
-line by line and is what tests hold the fast path to. The fast path gets its speed from
-numpy alone: integer tap arithmetic (exact), the phase as π − atan2(s, −c) (already in
-[0, 2π), no wrapping pass), the phase offset wrapped once per camera, and the points written
-plane by plane into their (H, W, 3) array.
+line by line and is what tests hold the fast path to. The fast path: integer tap arithmetic
+(exact), the phase as π − atan2(s, −c) (already in [0, 2π), no wrapping pass), the phase
+offset wrapped once per camera; the per-pixel arithmetic compiled in one pass either side
+of numpy's `arctan2` (`tofcut.driver.demod_kernels`).
 """
 
 from __future__ import annotations
@@ -40,7 +40,8 @@ class Optics:
     def __post_init__(self) -> None:
         planes = np.ascontiguousarray(np.moveaxis(self.rays, -1, 0), dtype=np.float64)
         object.__setattr__(self, "ray_planes", planes)
-        object.__setattr__(self, "wrapped_offset", np.mod(self.phase_offset, TWO_PI))
+        wrapped = np.ascontiguousarray(np.mod(self.phase_offset, TWO_PI), dtype=np.float64)
+        object.__setattr__(self, "wrapped_offset", wrapped)
 
     @classmethod
     def from_calibration(cls, calib: Calibration) -> Optics:
@@ -54,31 +55,19 @@ def _range_scale(raw: RawFrame) -> float:
 
 def demodulate(raw: RawFrame, optics: Optics, amplitude_threshold: float = 0.0) -> Frame:
     """Turn one raw frame into range, amplitude, intensity, a valid mask and points."""
-    # a count above the sensor's 14 bits is not a reading (the pixel is invalid below); held
-    # at full scale, the squares stay exact in int32 instead of overflowing
-    a0, a1, a2, a3 = np.minimum(raw.taps, MAX_COUNT).astype(np.int32)
-    s = a3 - a1  # s and −c, exact in int32
-    nc = a2 - a0
-    phase: F64 = np.arctan2(s, nc, dtype=np.float64)
-    np.subtract(math.pi, phase, out=phase)  # π − atan2(s, −c) = atan2(s, c) in [0, 2π)
-    squares = s * s  # at most 2 · 16383², exact in int32
-    squares += nc * nc
-    phase[squares == 0] = 0.0  # no signal: atan2(0, 0) = 0, as the reference has it
-    amplitude: F64 = np.sqrt(squares, dtype=np.float64)
-    amplitude *= 0.5
-    total = a0 + a1
-    total += a2
-    total += a3
-    intensity: F64 = np.multiply(total, 0.25, dtype=np.float64)
-    rng = phase - optics.wrapped_offset
-    rng += TWO_PI * (rng < 0.0)
-    rng *= _range_scale(raw)
-    rng -= optics.distance_offset_m
-    valid: npt.NDArray[np.bool_] = raw.taps.max(axis=0) < MAX_COUNT
-    if amplitude_threshold > 0.0:
-        valid &= amplitude >= amplitude_threshold
-    xyz: F64 = np.empty((*rng.shape, 3))
-    np.multiply(optics.ray_planes, rng, out=np.moveaxis(xyz, -1, 0))
+    from tofcut.driver import demod_kernels  # numba: loaded with the first frame
+
+    # a count above the sensor's 14 bits is not a reading (the pixel is invalid); held at
+    # full scale, the squares stay exact in int32 instead of overflowing
+    taps = np.ascontiguousarray(raw.taps, dtype=np.uint16)
+    s, nc, amplitude, intensity, valid = demod_kernels.taps_to_signal(
+        taps, float(amplitude_threshold)
+    )
+    phase: F64 = np.arctan2(s, nc, dtype=np.float64)  # π − this = atan2(s, c) in [0, 2π)
+    rng, xyz = demod_kernels.phase_to_points(
+        phase, s, nc, optics.wrapped_offset, _range_scale(raw), optics.distance_offset_m,
+        optics.ray_planes,
+    )  # fmt: skip
     return Frame(
         header=raw.header,
         host_time_ns=raw.host_time_ns,

@@ -300,11 +300,14 @@ def test_a_bad_camera_list_ends_the_command_with_one_line_and_status_2(tmp_path,
 
 
 def test_every_tracker_kernel_runs_without_the_gil():
-    """A camera's reader and rerun threads never wait on the tracker's compiled loops."""
+    """A camera's reader and rerun threads never wait on the tracker's compiled loops (or
+    demodulation's)."""
+    from tofcut.driver import demod_kernels
     from tofcut.tracker import compiled
 
     for name in compiled.kernel_modules():
         importlib.import_module(name)
     dispatchers = [d for d, _ in compiled.KERNELS.values()] + list(compiled.HELPERS.values())
     assert len(dispatchers) > 30
+    dispatchers += [demod_kernels.taps_to_signal, demod_kernels.phase_to_points]
     assert all(d.targetoptions.get("nogil") for d in dispatchers)

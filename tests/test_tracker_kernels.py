@@ -393,9 +393,19 @@ def test_quieten_moves_the_loud_points_as_the_numpy_form_does():
 
 
 def test_the_compiled_median_is_numpys():
+    """Below and above `SAMPLED` values, with ties, sorted, heavy tails and infinities, and
+    where the sample's brackets miss the middle (every SAMPLE_STEP-th value far off)."""
     rng = np.random.default_rng(10)
-    for n in (1, 2, 3, 8, 9, 100, 6263, 6264):
-        for values in (rng.random(n), rng.integers(0, 4, n).astype(float), np.sort(rng.random(n))):
+    for n in (1, 2, 3, 8, 9, 100, 511, 512, 513, 6263, 6264):
+        missed = rng.random(n)
+        missed[:: stats_kernels.SAMPLE_STEP] += 10.0
+        tails = rng.standard_cauchy(n)
+        tails[: n // 10] = np.inf
+        tails[n // 10 : n // 5] = -np.inf
+        for values in (
+            rng.random(n), rng.integers(0, 4, n).astype(float), np.sort(rng.random(n)),
+            missed, tails,
+        ):  # fmt: skip
             assert stats_kernels.median(values) == np.median(values)
     values[1] = np.nan
     assert np.isnan(stats_kernels.median(values))

@@ -129,12 +129,11 @@ def standing_regions(
             if count < side * side / 2:
                 continue
             mean = (s_n[v1, u1] - s_n[v0, u1] - s_n[v1, u0] + s_n[v0, u0]) / count
+            if not mean > min_height:
+                continue  # the cheap test first: most of a frame is scenery, mean near 0
             mean_var = (s_v[v1, u1] - s_v[v0, u1] - s_v[v1, u0] + s_v[v0, u0]) / count
-            out[v, u] = (
-                mean > sigmas * math.sqrt(mean_var / count)
-                and mean > low_share * math.sqrt(mean_var)
-                and mean > min_height
-            )
+            beyond_noise = mean > sigmas * math.sqrt(mean_var / count)
+            out[v, u] = beyond_noise and mean > low_share * math.sqrt(mean_var)
     return out
 
 

@@ -88,12 +88,12 @@ def kernel_modules() -> list[str]:
 
 def warm_up() -> None:
     """Load (or compile) every kernel of every kernel module for each argument types it is
-    registered with, so the first frames of a live run do not stall on it (about a second
-    from the disk cache, once per process)."""
+    registered with, and the driver's demodulation kernels, so the first frames of a live
+    run do not stall on them (about a second from the disk cache, once per process)."""
     global _warm
     if _warm:
         return
-    for name in kernel_modules():
+    for name in [*kernel_modules(), "tofcut.driver.demod_kernels"]:  # demodulation's too
         importlib.import_module(name)
     for dispatcher, examples in KERNELS.values():
         for args in examples:

@@ -168,33 +168,31 @@ def cut_nodes(
     the nodes' total ties."""
     h, w = free.shape
     k = cost.shape[0]
-    index = np.full((h, w), -1, np.int64)
-    n = 0
-    for v in range(h):
-        for u in range(w):
-            if free[v, u]:
-                index[v, u] = n
-                n += 1
+    n = np.count_nonzero(free)
+    index = np.empty((h, w), np.int64)
     where_v = np.empty(n, np.int64)
     where_u = np.empty(n, np.int64)
+    a = 0
+    for v in range(h):
+        for u in range(w):
+            index[v, u] = a if free[v, u] else -1
+            if free[v, u]:
+                where_v[a], where_u[a] = v, u
+                a += 1
     unary = np.zeros((k + 1, n))
     least = np.full((k, n), np.nan)
     ties = np.empty(n)
     c = 0  # the next of (rows, cols), both in row-major order
-    for v in range(h):
-        for u in range(w):
-            a = index[v, u]
-            if a < 0:
-                continue
-            where_v[a], where_u[a] = v, u
-            unary[0, a] = u0[v, u]
-            ties[a] = total[v, u]
-            while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
-                c += 1
-            if c < rows.size and rows[c] == v and cols[c] == u:
-                for t in range(k):
-                    unary[t + 1, a] = cost[t, c]
-                    least[t, a] = floor[t, c]
+    for a in range(n):
+        v, u = where_v[a], where_u[a]
+        unary[0, a] = u0[v, u]
+        ties[a] = total[v, u]
+        while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
+            c += 1
+        if c < rows.size and rows[c] == v and cols[c] == u:
+            for t in range(k):
+                unary[t + 1, a] = cost[t, c]
+                least[t, a] = floor[t, c]
     return index, where_v, where_u, unary, least, ties
 
 

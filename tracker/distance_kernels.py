@@ -210,23 +210,30 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
                 widest, lo, hi = spread, cloud[:, a].min(), cloud[:, a].max()
                 axes[k] = a
         order = _ascending(cloud[:, axes[k]], lo, hi)
-        for n in range(order.size):
-            out[starts[k] + n] = cloud[order[n]]
         # within each slab, along the next widest axis: its boxes are then small both ways
-        for s in range(starts[k], starts[k + 1], SLAB):
-            end = min(starts[k + 1], s + SLAB)
+        for s in range(0, order.size, SLAB):
+            end = min(order.size, s + SLAB)
             across, widest = 0, -1.0
             for a in range(3):
-                spread = out[s:end, a].max() - out[s:end, a].min()
-                if a != axes[k] and spread > widest:
-                    widest = spread
+                first = cloud[order[s], a]
+                low, high = first, first
+                for n in range(s + 1, end):
+                    x = cloud[order[n], a]
+                    low, high = min(low, x), max(high, x)
+                if a != axes[k] and high - low > widest:
+                    widest = high - low
                     across = a
-            for n in range(s + 1, end):  # insertion sort: a slab is short
-                x, y, z = out[n, 0], out[n, 1], out[n, 2]
-                key = out[n, across]
+            for n in range(s + 1, end):  # insertion sort (of the order): a slab is short
+                j = order[n]
+                key = cloud[j, across]
                 m = n - 1
-                while m >= s and out[m, across] > key:
-                    out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = out[m, 0], out[m, 1], out[m, 2]
+                while m >= s and cloud[order[m], across] > key:
+                    order[m + 1] = order[m]
                     m -= 1
-                out[m + 1, 0], out[m + 1, 1], out[m + 1, 2] = x, y, z
+                order[m + 1] = j
+        for n in range(order.size):
+            i = order[n]
+            out[starts[k] + n, 0] = cloud[i, 0]
+            out[starts[k] + n, 1] = cloud[i, 1]
+            out[starts[k] + n, 2] = cloud[i, 2]
     return out, axes
