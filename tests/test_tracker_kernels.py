@@ -26,10 +26,11 @@ from tofcut.tracker import (
     reference,
     stats_kernels,
 )
+from tofcut.tracker.background import MEDIAN_SHARES
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.motion import ConstantVelocity, MotionParams
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
-from tofcut.tracker.pieces import MEDIAN_SHARES, STEP_APART
+from tofcut.tracker.pieces import STEP_APART
 from tofcut.tracker.reference import ReferenceTracker
 from tofcut.tracker.tracker import Tracker
 
@@ -369,9 +370,38 @@ def test_the_background_cost_weighs_the_nearness_as_the_background_model_does():
         with np.errstate(invalid="ignore"):
             z = np.where(usable, (model - (model - nearer)) / noise, 0.0) - deadband
         want = np.where(known, np.minimum(0.5 * np.maximum(z, 0.0) ** 2, cap), unknown)
+        shares = np.array([1.0, share, 0.251, 0.179])  # none louder than a 3×3 median quietens
         got = cut_kernels.background_cost(
-            model, sigma, known, seen, valid, factor, loud_sigma, share, deadband, cap, unknown
+            model, sigma, known, seen, valid, factor, loud_sigma, shares, deadband, cap, unknown
         )
+        np.testing.assert_array_equal(got, want)
+
+
+def test_the_background_cost_widens_the_median_where_the_noise_is_louder():
+    # 3×3 to 7×7 windows by the noise, against reference.weighed_nearness's numpy (scipy's
+    # median filter for the wider windows)
+    rng = np.random.default_rng(21)
+    factor, loud_sigma, deadband, cap, unknown = 4.0, 0.05, 1.0, 8.0, 3.0
+    for _ in range(30):
+        h, w = rng.integers(1, 25, 2)
+        bg = SimpleNamespace(
+            range=rng.random((h, w)) + 1.0,
+            sigma=rng.random((h, w)) * 0.12,  # quiet, 3×3, 5×5 and 7×7 windows
+            known=rng.random((h, w)) < 0.9,
+            params=SimpleNamespace(
+                noise_factor=factor, min_height_sigmas=1.0, min_height_m=loud_sigma
+            ),
+        )
+        frame = SimpleNamespace(valid=rng.random((h, w)) < 0.9)
+        seen = bg.range - rng.normal(size=(h, w)) * 0.05
+        nearer, noise = reference.weighed_nearness(bg, frame, seen)
+        usable = frame.valid & bg.known
+        z = np.where(usable, (bg.range - (bg.range - nearer)) / noise, 0.0) - deadband
+        want = np.where(bg.known, np.minimum(0.5 * np.maximum(z, 0.0) ** 2, cap), unknown)
+        got = cut_kernels.background_cost(
+            bg.range, bg.sigma, bg.known, seen, frame.valid, factor, loud_sigma, MEDIAN_SHARES,
+            deadband, cap, unknown,
+        )  # fmt: skip
         np.testing.assert_array_equal(got, want)
 
 

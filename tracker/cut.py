@@ -27,7 +27,7 @@ from scipy import ndimage
 from tofcut._types import F64, I64, U16, B
 from tofcut.driver.frames import Frame
 from tofcut.tracker import cut_kernels, distance_kernels
-from tofcut.tracker.background import MEDIAN_NOISE_SHARE, BackgroundModel
+from tofcut.tracker.background import MEDIAN_SHARES, BackgroundModel
 from tofcut.tracker.live_track import LiveTrack, SortedSurface
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS
@@ -256,7 +256,7 @@ class JointCut:
         q = bg.params
         cost: F64 = cut_kernels.background_cost(
             bg.range, bg.sigma, bg.known, seen, frame.valid, q.noise_factor,
-            q.min_height_sigmas * q.min_height_m, MEDIAN_NOISE_SHARE, p.deadband,
+            q.min_height_sigmas * q.min_height_m, MEDIAN_SHARES, p.deadband,
             p.background_cap, p.unknown_cost,
         )  # fmt: skip
         return cost

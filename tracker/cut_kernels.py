@@ -24,7 +24,7 @@ from tofcut.tracker.compiled import (
 )
 from tofcut.tracker.components_kernels import parts
 from tofcut.tracker.neighbours import DU, DV, FACTORS
-from tofcut.tracker.stats_kernels import median3
+from tofcut.tracker.stats_kernels import insert_sorted, median3
 
 
 @kernel((F64_3D, B_2D, B_2D, 1.0))
@@ -265,30 +265,39 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     return out
 
 
-@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0))
+@kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, F64_1D, 1.0, 1.0, 1.0))
 def background_cost(
     model: F64, sigma: F64, known: B, seen: F64, valid: B, noise_factor: float,
-    loud_sigma: float, share: float, deadband: float, cap: float, unknown: float,
+    loud_sigma: float, shares: F64, deadband: float, cap: float, unknown: float,
 ) -> F64:  # fmt: skip
     """Each pixel's cost for the background (see `JointCut.background_cost`): half the
     square of how far it stands in front of the scenery, in noise sigmas, less the
     deadband, at most `cap`; `unknown` where the scenery is not known. How far and its
     noise are `reference.weighed_nearness`'s, by the same arithmetic: where
-    `noise_factor` sigmas are more than `loud_sigma`, the 3×3 median of the nearness and
-    `share` of the noise."""
+    `noise_factor` sigmas are more than `loud_sigma`, the median of the nearness over the
+    (2r+1)² window round the pixel (edges repeated) and `shares[r]` of the noise, r the
+    smallest radius (1 to len(shares) − 1) that brings `noise_factor` of that noise to
+    `loud_sigma` or below (the largest where none does)."""
     h, w = model.shape
     nearer = np.empty((h, w))
     for v in range(h):
         for u in range(w):
             nearer[v, u] = model[v, u] - seen[v, u] if valid[v, u] and known[v, u] else 0.0
     out = np.empty((h, w))
-    window = np.empty(9)
+    top = shares.size - 1
+    window = np.empty((2 * top + 1) ** 2)
     for v in range(h):
         for u in range(w):
             usable = valid[v, u] and known[v, u]
             near, s = nearer[v, u], sigma[v, u]
             if usable and noise_factor * s > loud_sigma:
-                near, s = median3(nearer, v, u, window), s * share
+                r = 1
+                while r < top and noise_factor * s * shares[r] > loud_sigma:
+                    r += 1
+                near = (
+                    median3(nearer, v, u, window) if r == 1 else _median_at(nearer, v, u, r, window)
+                )
+                s = s * shares[r]
             z = (model[v, u] - (model[v, u] - near)) / s if usable else 0.0
             z = z - deadband
             z = z if (z >= 0.0 or z != z) else 0.0
@@ -296,6 +305,20 @@ def background_cost(
             cost = cost if (cost <= cap or cost != cost) else cap
             out[v, u] = cost if known[v, u] else unknown
     return out
+
+
+@helper
+def _median_at(values: F64, v: int, u: int, r: int, window: F64) -> float:
+    """The median of the (2r+1)² window round (v, u) in `values`, edges repeated (`window`
+    room for its values): `scipy.ndimage.median_filter(values, 2r + 1, mode="nearest")`
+    there."""
+    h, w = values.shape
+    k = 0
+    for dv in range(-r, r + 1):
+        for du in range(-r, r + 1):
+            insert_sorted(window, k, values[min(max(v + dv, 0), h - 1), min(max(u + du, 0), w - 1)])
+            k += 1
+    return float(window[k // 2])
 
 
 @helper

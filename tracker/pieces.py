@@ -14,14 +14,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels, components_kernels, pieces_kernels
 from tofcut.tracker.background import (
-    MEDIAN_NOISE_SHARE,
+    MEDIAN_SHARES,
     BackgroundModel,
     on_belt_height,
     standing_regions,
@@ -29,9 +27,6 @@ from tofcut.tracker.background import (
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.tops import facing_up, split_by_tops
 
-MEDIAN_SHARES = np.array([1.0, MEDIAN_NOISE_SHARE, 0.251, 0.179])
-"""By radius r, the noise of the median of (2r+1)² independent readings as a share of one
-reading's, √(π/2)/(2r+1): the window of `quietened` is at most 7×7."""
 STEP_APART = 4.0
 """A loud pixel's median window grows until a step of `connect_m` is this many times the
 quietened noise: a step between two objects in 2–3 cm of noise (a dark box far away) stands

@@ -23,7 +23,7 @@ from tofcut.tracker import stats_kernels
 from tofcut.tracker.background import (
     BLEND_SIGMAS,
     BLEND_VARIANCE_SHARE,
-    MEDIAN_NOISE_SHARE,
+    MEDIAN_SHARES,
     BackgroundModel,
     near_any,
     on_belt_height,
@@ -35,7 +35,7 @@ from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
 from tofcut.tracker.neighbours import EIGHT, FACTORS, Region, pair_slices
 from tofcut.tracker.noise import FIT_STRIDE
 from tofcut.tracker.params import TrackerParams
-from tofcut.tracker.pieces import MEDIAN_SHARES, STEP_APART, Pieces, Quietened
+from tofcut.tracker.pieces import STEP_APART, Pieces, Quietened
 from tofcut.tracker.stats import MAD_TO_SIGMA
 from tofcut.tracker.tracker import Tracker
 
@@ -222,20 +222,26 @@ def weighed_nearness(bg: BackgroundModel, frame: Frame, seen: F64) -> tuple[F64,
     pass): each pixel's nearness (metres in front of the scenery, 0 where unknown or
     invalid; `seen`: the frame's `BackgroundModel.seen_range`) and its noise; where the noise
     is so loud that the lowest object (`min_height_sigmas`) would not stand out pixel by
-    pixel, the median of the 3×3 neighbourhood instead (a step's edge stays where it is),
-    with that median's smaller noise."""
+    pixel, the median of the smallest window round it (3×3 to 7×7, edges repeated) whose
+    median's noise is quiet enough, or the largest (a step's edge stays where it is), with
+    that median's smaller noise."""
     usable = frame.valid & bg.known
     with np.errstate(invalid="ignore"):
         nearer = np.where(usable, bg.range - seen, 0.0)
     p = bg.params
-    loud = usable & (p.noise_factor * bg.sigma > p.min_height_sigmas * p.min_height_m)
+    limit = p.min_height_sigmas * p.min_height_m
+    loud = usable & (p.noise_factor * bg.sigma > limit)
     if not loud.any():
         return nearer, bg.sigma
-    median = stats_kernels.median3_at(nearer, loud)
-    return (
-        np.where(loud, median, nearer),
-        np.where(loud, bg.sigma * MEDIAN_NOISE_SHARE, bg.sigma),
-    )
+    radius = np.where(loud, 1, 0)
+    for r in range(2, MEDIAN_SHARES.size):
+        radius[loud & (p.noise_factor * bg.sigma * MEDIAN_SHARES[r - 1] > limit)] = r
+    median = stats_kernels.median3_at(nearer, radius == 1)
+    for r in range(2, MEDIAN_SHARES.size):
+        wide = radius == r
+        if wide.any():
+            median[wide] = ndimage.median_filter(nearer, 2 * r + 1, mode="nearest")[wide]
+    return median, np.where(loud, bg.sigma * MEDIAN_SHARES[radius], bg.sigma)
 
 
 @_replacing(Pieces)

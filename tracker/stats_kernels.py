@@ -105,7 +105,7 @@ def median_above(values: F64, x: float) -> bool:
 
 
 @helper
-def _insert(window: F64, k: int, x: float) -> None:
+def insert_sorted(window: F64, k: int, x: float) -> None:
     """Put `x` in order into `window`, whose first `k` values are in ascending order: one step
     of an insertion sort, for a window's median as it fills."""
     while k > 0 and window[k - 1] > x:
@@ -180,7 +180,7 @@ def median3(values: F64, v: int, u: int, window: F64) -> float:
             k += 1
     if nan:
         for k in range(9):
-            _insert(window, k, window[k])
+            insert_sorted(window, k, window[k])
         return float(window[4])
     return _median9(
         window[0], window[1], window[2], window[3], window[4], window[5], window[6], window[7],
@@ -205,7 +205,7 @@ def median_within(values: F64, where: B, radius: I64) -> F64:
             for y in range(max(v - r, 0), min(v + r + 1, h)):
                 for x in range(max(u - r, 0), min(u + r + 1, w)):
                     if where[y, x]:
-                        _insert(window, k, values[y, x])
+                        insert_sorted(window, k, values[y, x])
                         k += 1
             out[v, u] = window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2])
     return out
