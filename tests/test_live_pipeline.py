@@ -15,7 +15,7 @@ from tofcut.driver.stream import StreamStats
 from tofcut.tools.cli import main
 from tofcut.tools.commands import record, tracking
 from tofcut.tools.pipeline.latency import LatencyHistogram
-from tofcut.tools.pipeline.losses import describe_losses, format_ranges
+from tofcut.tools.pipeline.losses import describe_losses, describe_untracked, format_ranges
 from tofcut.tools.pipeline.rerun_log import STATUS_EVERY
 from tofcut.tools.pipeline.run import EVENTS_QUEUED, EventRelay
 from tofcut.tools.pipeline.sources import open_source
@@ -160,6 +160,12 @@ def test_the_closing_lines_say_what_was_counted_and_what_estimated():
     assert ranges == "lost sequence numbers: 10-12, 100-136 (estimated), 300"
     assert format_ranges([(1, 1), (3, 4), (8, 9)], limit=2) == "1 earlier ranges, then 3-4, 8-9"
     assert describe_losses(StreamStats(frames=3)) == ["received 3 frames; lost 0; 0 damaged"]
+
+
+def test_frames_received_but_not_tracked_when_the_run_stopped_are_said():
+    # `tofcut live` for 10 s: 501 received, 499 tracked, none dropped; 2 still queued
+    assert describe_untracked(501, 499, 0) == "received but not tracked when the run stopped: 2"
+    assert describe_untracked(500, 490, 10) is None
 
 
 def test_latency_percentiles_are_within_two_percent_in_constant_memory():

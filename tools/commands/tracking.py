@@ -38,7 +38,7 @@ from tofcut.tools.commands.startup import current as startup
 from tofcut.tools.pipeline.belt_source import resolve_run_belt, run_metadata
 from tofcut.tools.pipeline.conveyor_line import ConveyorLine, open_conveyor
 from tofcut.tools.pipeline.keeping_up import PaceWatch
-from tofcut.tools.pipeline.losses import describe_losses, event_level
+from tofcut.tools.pipeline.losses import describe_losses, describe_untracked, event_level
 from tofcut.tools.pipeline.mots import DEFORMABLE_CLASS, RIGID_CLASS, MotsWriter
 from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
 from tofcut.tools.pipeline.rerun_sink import CameraTree, NullSink, RerunSink
@@ -274,6 +274,9 @@ def _track(
     for text in describe_losses(device.stats):
         say(text)
     say(f"dropped by the tracker queue (the tracker fell behind): {summary.dropped}")
+    untracked = describe_untracked(device.stats.frames, summary.frames, summary.dropped)
+    if untracked is not None:
+        say(untracked)
     say(sink.summary())
     say(run_belt.describe())
     found = run_belt.describe_found()

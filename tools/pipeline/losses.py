@@ -65,6 +65,16 @@ def describe_losses(stats: StreamStats) -> list[str]:
     return lines
 
 
+def describe_untracked(received: int, tracked: int, dropped: int) -> str | None:
+    """The closing line for frames received but neither tracked nor dropped: those still
+    queued, or arriving, when the run stopped (its time or frames were up, or Ctrl-C);
+    None when every frame is accounted for."""
+    left = received - tracked - dropped
+    if left <= 0:
+        return None
+    return f"received but not tracked when the run stopped: {left}"
+
+
 def stats_summary(stats: StreamStats) -> str:
     """One line of a stream's counts and its last lost sequence numbers: what `record` and
     `convert` say when they are done."""
