@@ -34,11 +34,10 @@ frames' spread alone can make a pixel look many times quieter than it is."""
 BLEND_SIGMAS = 2.5
 BLEND_VARIANCE_SHARE = 0.9113
 """Variance of a standard normal truncated to ±2.5 (what the blended deviations have)."""
-MEDIAN_NOISE_SHARE = 0.418
-"""Noise of the median of 3×3 independent readings, as a share of one reading's: √(π/18)."""
-MEDIAN_SHARES = np.array([1.0, MEDIAN_NOISE_SHARE, 0.251, 0.179])
+MEDIAN_SHARES = np.array([1.0, 0.418, 0.251, 0.179])
 """By radius r, the noise of the median of (2r+1)² independent readings as a share of one
-reading's, √(π/2)/(2r+1): the windows that quieten loud pixels are at most 7×7."""
+reading's, √(π/2)/(2r+1) (0.418 for 3×3): the windows that quieten loud pixels are at most
+7×7."""
 MAX_RAIL_M = 0.1
 """Where the belt's width is not known, what stands on its plane while the scenery is learned
 and is narrower than this..."""
