@@ -302,7 +302,9 @@ class Roster:
         splitting = []
         many = big.sum(axis=1) >= 2
         for k, t in enumerate(self.tracks):
-            two = bool(many[k]) and _touching(pieces, np.nonzero(big[k])[0], labels == t.id)
+            two = bool(many[k]) and _two_objects(
+                pieces, np.nonzero(big[k])[0], labels == t.id, frame.range, p.connect_m
+            )
             t.split_frames = t.split_frames + 1 if two else 0
             if t.split_frames >= p.split_frames:
                 splitting.append(k)
@@ -471,15 +473,36 @@ def _box_of(mask: B) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
-def _touching(pieces: I32, surfaces: I64, mask: B) -> bool:
-    """Whether the largest of these pieces meets another of them within the track's own
-    `mask` (across the seam a 3D step leaves, or across a side face between them that noise
-    breaks into specks): two objects side by side, not one seen either side of an occluder
-    (which parts the mask)."""
+def _two_objects(pieces: I32, surfaces: I64, mask: B, rng: F64, step_m: float) -> bool:
+    """Whether a track's `mask` holds two objects: the largest of these pieces meets another
+    of them within the mask (across the seam a 3D step leaves, or across a side face between
+    them that noise breaks into specks), or another lies in a part of the mask that the
+    scenery behind parts from it (the belt seen between them, `step_m` farther in range
+    than both). One object seen either side of an occluder has the occluder in front."""
+    box = _box_of(mask)
+    inside, cut, ranges = mask[box], pieces[box], rng[box]
+    parts, _ = ndimage.label(inside, EIGHT)
     sizes = np.bincount(pieces.ravel())
     first = surfaces[np.argmax(sizes[surfaces])]
-    parts, _ = ndimage.label(mask, EIGHT)
-    home = np.bincount(parts[pieces == first]).argmax()
-    if home == 0:
-        return False
-    return bool(np.isin(pieces[parts == home], surfaces[surfaces != first]).any())
+    home = parts == np.bincount(parts[(cut == first) & inside]).argmax()
+    others = np.isin(cut, surfaces[surfaces != first]) & inside
+    if (others & home).any():
+        return True
+    to_home = ndimage.distance_transform_edt(~home)
+    for part in np.unique(parts[others]).tolist():
+        there = parts == part
+        to_there = ndimage.distance_transform_edt(~there)
+        apart = to_home + to_there
+        gap = float(apart[there].min())
+        between = (apart <= gap + 1.0) & ~home & ~there
+        seen = ranges[between]
+        seen = seen[np.isfinite(seen)]
+        if seen.size == 0:
+            continue
+        near = max(
+            float(np.median(ranges[home & (to_there <= gap + 3)])),
+            float(np.median(ranges[there & (to_home <= gap + 3)])),
+        )
+        if float(np.median(seen)) > near + step_m:
+            return True
+    return False
