@@ -135,5 +135,7 @@ def test_an_object_in_front_of_scenery_whose_phase_wrapped_round_stands_out():
 
     # nor does the model move back to it, as it does where scenery turns out farther
     for _ in range(model.params.reveal_frames + 2):
-        model.update(box, np.ones(frame.shape, bool), noise, np.zeros((0, 3)), 0.05)
+        model.update(
+            box, np.ones(frame.shape, bool), noise, np.zeros((0, 3)), 0.05, model.seen_range(box)
+        )
     np.testing.assert_array_equal(model.range[wrapped], 0.3)

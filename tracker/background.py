@@ -302,7 +302,7 @@ class BackgroundModel:
         noise: F64,
         occupied: F64,
         reach: float,
-        seen: F64 | None = None,
+        seen: F64,
     ) -> None:
         """Follow the scene where nothing is tracked (`free`): slowly, and back to a farther
         range once the pixel has read farther for `reveal_frames` frames in a row, tracked
@@ -310,9 +310,7 @@ class BackgroundModel:
         not known yet is learned after `reveal_frames` free frames in a row (the median of
         their readings; its noise `noise`, the frame's), unless it lies within `reach` of
         one of the `occupied` (k, 3) points: an object's part its track missed. `seen`: the
-        frame's `seen_range`, where the caller has it."""
-        if seen is None:
-            seen = self.seen_range(frame)
+        frame's `seen_range`."""
         p = self.params
         usable = free & frame.valid
         due = usable & ~self.known & (self._unknown_seen >= p.reveal_frames - 1)
