@@ -185,6 +185,49 @@ def test_range_penalty_separates_the_look_alikes_that_intensity_cannot(fig1):
     assert np.array_equal(loose.mask, by_intensity.mask)  # β = 0 is eq. (5)
 
 
+def test_a_seed_on_a_highlight_gives_way_to_the_targets_own_intensity():
+    # a bright patch on the square (a highlight: 20 of its 288 pixels); the seed on it
+    intensity, xyz, valid, square = two_plane_scene(np.random.default_rng(2))
+    v, u = np.mgrid[0:H, 0:W]
+    patch = (v >= 18) & (v < 23) & (u >= 16) & (u < 20)
+    dim = np.where(square & ~patch, intensity - 300.0, intensity)
+    target = Target(pixel=(18, 20))
+    seed_only = segment_arrays(dim, xyz, valid, target, Energy.RANGE_DATA)
+    own = segment_arrays(dim, xyz, valid, replace(target, extent_m=0.3), Energy.RANGE_DATA)
+    grey = 255.0 / own.model.intensity_ref
+    assert seed_only.model.mu_target == pytest.approx(2000 * grey, abs=15 * grey)
+    # the square's median, not its brightest tenth's (the wall's 1000 is out of reach)
+    assert own.model.mu_target == pytest.approx(1700 * grey, abs=15 * grey)
+    assert iou(own.mask, square) > 0.95
+    # a seed on a face that is a third of the target is typical of it: its own stands
+    halves = np.where(square & (u >= 21), intensity - 300.0, intensity)
+    typical = segment_arrays(halves, xyz, valid, replace(target, extent_m=0.3), Energy.RANGE_DATA)
+    assert typical.model.mu_target == pytest.approx(
+        segment_arrays(halves, xyz, valid, target, Energy.RANGE_DATA).model.mu_target
+    )
+
+
+def test_figure1_premise_gives_the_3d_penalty_the_target_alone():
+    """paper-fig1-premise: eq. (6) with the defaults holds the marked box alone (the paper's
+    Fig. 1(b)); on paper-fig1, where two look-alikes touch it and the shading breaks eq. (5),
+    it does not."""
+    for name in ("paper-fig1-premise", "paper-fig1"):
+        source = open_scene(name, 0)
+        frame, truth = decode(source, scene_exposure(source, 0.0))
+        info = source.target
+        extent = extent_of(truth.object(info.id))
+        target = Target(pixel=info.seed_pixel, point=tuple(info.centroid), extent_m=extent)
+        seg = segment(frame, target, Energy.RANGE_DATA)
+        mask = truth.labels == info.id
+        if name == "paper-fig1-premise":
+            assert iou(seg.mask, mask) > 0.9
+            others = [o.id for o in truth.objects if o.id != info.id]
+            assert all((seg.mask & (truth.labels == o)).sum() < 0.1 * (truth.labels == o).sum()
+                       for o in others)  # fmt: skip
+        else:
+            assert iou(seg.mask, mask) < 0.85
+
+
 def test_the_benchmark_runs_and_its_labels_agree(fig1):
     source, frame, _truth = fig1
     info = source.target

@@ -3,10 +3,11 @@
 Figure 1: intensity only, the 3D distance penalty and the image-plane penalty (β = 0.05 and
 0.2) segment the box marked "+". Figures 4 and 5: §4.2 with eq. (7), the paper's Experiment
 2, from one seed per object. Each claim is stated twice: on a scene where its premise holds
-(paper-fig1-premise: the target and its look-alikes of one intensity, the belt of another;
-paper-fig4, paper-fig5: the objects stand apart in range from what is behind them) and on
-the hard one (paper-fig1: the boxes' front faces in shade, the belt's intensity between
-those of their faces; robot, tools: they stand or lie on their support).
+(paper-fig1-premise: the target and its look-alikes of one intensity, the belt of another,
+and apart in 3D; paper-fig4, paper-fig5: the objects stand apart in range from what is
+behind them) and on the hard one (paper-fig1: the boxes' front faces in shade, the belt's
+intensity between those of their faces, look-alikes touching the target; robot, tools: they
+stand or lie on their support).
 Beyond the paper: the support energy (`Energy.SUPPORT`) on objects touching their support
 (robot, tools, table, belt-parts). Every subject is also cut by OpenCV's grabCut from a box
 round it. Every energy uses the library's default `SegmentParams` (β of the image plane
@@ -393,8 +394,19 @@ def ball_note(bound: BallBound) -> str:
     else:
         belt = (
             f"Eq. (5) keeps the belt out here: the target's grey levels are {grey}) and the "
-            f"belt's within that radius {bound.support_grey:.0f}; what eq. (6) adds to the "
-            "target is the look-alikes that stand within its own extent of µd."
+            f"belt's within that radius {bound.support_grey:.0f}; "
+        )
+        # what stands within the target's own extent, no derived β can keep out
+        inside = [
+            f"{name} (nearest {r * 1e3:.0f} mm)"
+            for name, _, r in others
+            if name != "belt" and r < bound.extent_m
+        ]
+        belt += (
+            "what eq. (6) cannot keep out is the look-alikes that reach within the target's "
+            f"own extent of µd: {', '.join(inside)}."
+            if inside
+            else "no look-alike reaches within the target's own extent of µd."
         )
     return (
         "What eq. (6) could reach here with the best β: a mask of the valid pixels within r "
@@ -419,13 +431,14 @@ intensity between those of their faces)."""
 
 FIG1_NOTES = {
     True: "The scene holds the paper's conditions for Figure 1 and no more: the objects of "
-    "`paper-fig1` where they stand there, touching and hiding each other alike (the can "
-    "halved in height so that from this view it hides the target's lower edge as it does "
-    "there), seen from 45° so that a box's top and front faces return the same light, on a "
-    "black belt, their albedos scaled by their distance² from the camera so that they match "
+    "`paper-fig1`, occluding each other and so apart in depth, no look-alike within the "
+    "target's extent of its centre (6 to 11 cm from it, where in `paper-fig1` two touch it), "
+    "seen from 45° so that a box's top and front faces return the same light, on a black "
+    "belt, their albedos scaled by their distance² from the camera so that they match "
     "(`sim/scenes/paper-fig1-premise.toml`): intensity alone should take the look-alikes and "
     "not the belt, as the paper's Figure 1(a) shows (the first verdict says how much of its "
-    "mask is belt).",
+    "mask is belt), and the distance from the target's centre should part them, as its "
+    "Figure 1(b) shows.",
     False: "The camera looks down at 64°: the boxes' tops face its light and their front "
     "faces meet it at a glancing angle, about half as bright, and the belt is of the "
     "objects' albedo.",
@@ -492,9 +505,9 @@ def figure1(seeds: Sequence[int], sweep: bool, scene: str) -> FigureResult:
             )
         rows += _support_sweep(frame, (subject,))
     where = (
-        "the faces lit alike, on a dark belt (the premise)"
+        "the faces lit alike, apart from it, on a dark belt (the premise)"
         if premise
-        else "the front faces in shade, on a belt of their intensity (the hard case)"
+        else "the front faces in shade, touching it, on a belt of their intensity (the hard case)"
     )
     return FigureResult(
         "fig1" if premise else "fig1-hard",
@@ -882,10 +895,11 @@ def write_report(out: Path, figures: Sequence[FigureResult], seeds: Sequence[int
         f"{SWALLOWED:.0%} of its pixels are in the mask; the target is *alone* when no other "
         f"object has more than {LEFT_ALONE:.0%} of its pixels in the mask. Each claim of "
         "Figures 1, 4 and 5 is stated on a scene where its premise holds (Figure 1: the target "
-        "and its look-alikes of one intensity, the belt of another; Figures 4 and 5: the "
-        "objects stand apart in range from what is behind them) and on the hard one (Figure 1: "
-        "the boxes' front faces in shade, the belt's intensity between those of their faces; "
-        "Figures 4 and 5: the objects stand or lie on their support).",
+        "and its look-alikes of one intensity, the belt of another, and apart in 3D; Figures 4 "
+        "and 5: the objects stand apart in range from what is behind them) and on the hard one "
+        "(Figure 1: the boxes' front faces in shade, the belt's intensity between those of "
+        "their faces, look-alikes touching the target; Figures 4 and 5: the objects stand or "
+        "lie on their support).",
         "",
     ]
     for premise, where in ((True, "where their premise holds"), (False, "on the hard scenes")):

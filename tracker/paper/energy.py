@@ -227,6 +227,44 @@ def window_median_point(xyz: F64, valid: B, centre: tuple[int, int], radius: int
     return np.median(picked, axis=0) if picked.size else None
 
 
+def target_intensity(
+    grey: F64, valid: B, xyz: F64, mu_d: F64, extent_m: float, seed_grey: float, mu_b: float
+) -> float:
+    """µt: the seed's grey level where it is typical of the target, else the target's median.
+    The target's pixels are the valid ones within its extent of µd whose grey level is nearer
+    the seed's than µb; the seed's is typical between their 10th and 90th percentile. A seed
+    on the target's brightest or darkest tenth (the face nearest the light, a highlight)
+    would leave the rest of it nearer µb than µt."""
+    own = _target_greys(
+        grey, valid, xyz, np.asarray(mu_d, np.float64), extent_m**2, seed_grey, mu_b
+    )
+    if not own.size:
+        return seed_grey
+    low, mid, high = np.percentile(own, [10, 50, 90])
+    return seed_grey if low <= seed_grey <= high else float(mid)
+
+
+@numba.njit(cache=True)
+def _target_greys(
+    grey: F64, valid: B, xyz: F64, point: F64, limit: float, seed_grey: float, mu_b: float
+) -> F64:
+    """`target_intensity`'s pixels' grey levels, in one pass over the frame."""
+    h, w = valid.shape
+    out = np.empty(h * w)
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            g = grey[v, u]
+            if (
+                valid[v, u]
+                and _squared_distance(xyz, v, u, point) <= limit
+                and abs(g - seed_grey) < abs(g - mu_b)
+            ):
+                out[n] = g
+                n += 1
+    return out[:n]
+
+
 def window_range_noise(xyz: F64, valid: B, centre: tuple[int, int], radius: int) -> float:
     """σr round (u, v): the robust σ of the range's second differences along the rows of the
     (2r+1)² window, over √6 (a second difference of three independent ranges has σ·√6; a

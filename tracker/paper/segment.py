@@ -113,7 +113,10 @@ class SegmentParams:
     beta_image: float = 0.05
     """β of the image-plane penalty, grey levels² per pixel² (the paper shows 0.05 and 0.2)."""
     mu_target: float | None = None
-    """µt; default: the median valid intensity in the prior window around the target's pixel."""
+    """µt; default: the median valid intensity in the prior window around the target's pixel;
+    for a target that gives its extent, the target's own median where the window's is not
+    typical of it (`energy.target_intensity`: a box's faces, nearer and farther from the
+    light, differ)."""
     mu_background: float | None = None
     """µb; default: the median valid intensity farther than the target's extent (plus twice
     the range noise) from µd."""
@@ -358,6 +361,9 @@ def estimate_model(
         mu_b = params.mu_background * scale
     else:
         mu_b = en.background_intensity(grey, valid, xyz, mu_d, margin)
+    if params.mu_target is None and target.extent_m is not None:
+        # the target's own intensity, where its extent says which pixels are its
+        mu_t = en.target_intensity(grey, valid, xyz, mu_d, extent, mu_t, mu_b)
     if params.beta_range is not None:
         beta = params.beta_range
     else:
