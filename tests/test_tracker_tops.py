@@ -10,7 +10,7 @@ from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tracker import components_kernels
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tops import facing_up, one_object, split_by_tops
+from tofcut.tracker.tops import facing_up, one_object, sides_of, split_by_tops
 
 
 def _pair(first_h: float, second_h: float, side_by_side: bool) -> SceneSource:
@@ -85,3 +85,21 @@ def test_two_objects_pressed_together_meet_at_a_crease_even_without_tops():
     body = (truth.labels > 0) & frame.valid
     boxes = np.where(body, truth.labels, 0).astype(np.uint16)
     assert one_object(boxes, frame.xyz, None, source.belt.geometry, 0.02) == []
+
+
+def test_a_side_face_lies_over_its_boxs_footprint_and_a_box_beside_does_not():
+    source = _pair(0.06, 0.16, False)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    belt = source.belt.geometry
+    noise = range_noise(frame, 0.004)
+    body = (truth.labels > 0) & frame.valid
+    up = facing_up(body, frame.xyz, noise, belt)
+    # the tall box held as two tracks, its top and the smaller part, what of its sides shows
+    tall = body & (truth.labels == 2)
+    faces = np.zeros(body.shape, np.uint16)
+    faces[tall & up] = 1
+    faces[tall & ~up] = 2
+    assert sides_of(faces, frame.xyz, noise, belt) == [(1, 2)]
+    # a low box pressed against it stands on its own footprint, below the tall one's top
+    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
+    assert sides_of(boxes, frame.xyz, noise, belt) == []

@@ -5,14 +5,17 @@ pressed against it with no step in range, so a cut at 3D steps keeps the two as 
 Their tops do not touch: between them stands the side face, which does not face up. A piece
 holding two tops of its own at different heights is two objects; its pixels are dealt out to
 the tops (`split_by_tops`). The other way round, two tracks that meet with no step and hold no
-two tops at different heights are faces of one object (`one_object`). Range cannot part two
-objects of one height pressed flush together: they stay one.
+two tops at different heights are faces of one object (`one_object`), and so are two where one
+lies over the other's footprint and rises to its top (`sides_of`): a side seen at a slant,
+across a step that foreshortening makes. Range cannot part two objects of one height pressed
+flush together: they stay one.
 """
 
 from __future__ import annotations
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
@@ -183,3 +186,49 @@ def _convex(labels: U16, xyz: F64, seam: list[tuple[int, int, int, int]]) -> boo
     if not votes:
         return True
     return float(np.median(votes)) >= -CONCAVE
+
+
+SIDE_SHARE = 0.8
+"""Share of a track's points that must lie over another's footprint for it to be a side."""
+
+
+def sides_of(labels: U16, xyz: F64, noise: F64, belt: BeltGeometry) -> list[tuple[int, int]]:
+    """Pairs of labels (smaller first) whose masks meet, where the one with fewer pixels lies,
+    as seen along the belt's normal, over the other's footprint (`SIDE_SHARE` of its points
+    within the noise of it) and rises to the other's top: a side face of the other, seen at a
+    slant across a step that foreshortening makes. An object beside another, even one pressed
+    against it, stands on its own footprint, and a lower one stops short of the other's top."""
+    h, w = labels.shape
+    meets: dict[tuple[int, int], int] = {}
+    for k in (0, 1):  # right, down
+        first, second = pair_slices((h, w), k)
+        a, b = labels[first], labels[second]
+        meet = (a != b) & (a > 0) & (b > 0)
+        if meet.any():
+            x, y = a[meet].astype(np.int64), b[meet].astype(np.int64)
+            for key in zip(np.minimum(x, y).tolist(), np.maximum(x, y).tolist(), strict=True):
+                meets[key] = meets.get(key, 0) + 1
+    return [
+        (x, y)
+        for (x, y), n in meets.items()
+        if n >= MIN_SEAM and _side(*_smaller_first(labels == x, labels == y), xyz, noise, belt)
+    ]
+
+
+def _smaller_first(a: B, b: B) -> tuple[B, B]:
+    """The two masks, the one with fewer pixels first."""
+    return (a, b) if np.count_nonzero(a) < np.count_nonzero(b) else (b, a)
+
+
+def _side(side: B, of: B, xyz: F64, noise: F64, belt: BeltGeometry) -> bool:
+    """Whether the mask `side` is a side face of the object in `of` (`sides_of`)."""
+    reach = max(0.02, float(np.median(noise[side])))
+    ps, po = xyz[side], xyz[of]
+    # a side rises to the other's top, where it meets it: a lower object beside stops short
+    rise = np.percentile(belt.height(ps), 95) - np.percentile(belt.height(po), 90)
+    if rise < -max(0.04, 2.0 * reach):
+        return False
+    gap, _ = cKDTree(np.c_[belt.along(po), belt.across(po)]).query(
+        np.c_[belt.along(ps), belt.across(ps)], distance_upper_bound=reach
+    )
+    return bool(np.isfinite(gap).mean() >= SIDE_SHARE)
