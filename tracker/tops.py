@@ -226,7 +226,7 @@ def _side(side: B, of: B, xyz: F64, noise: F64, belt: BeltGeometry) -> bool:
     ps, po = xyz[side], xyz[of]
     # a side rises to the other's top, where it meets it: a lower object beside stops short
     rise = np.percentile(belt.height(ps), 95) - np.percentile(belt.height(po), 90)
-    if rise < -max(0.04, 2.0 * reach):
+    if rise < -2.0 * reach:
         return False
     gap, _ = cKDTree(np.c_[belt.along(po), belt.across(po)]).query(
         np.c_[belt.along(ps), belt.across(ps)], distance_upper_bound=reach
