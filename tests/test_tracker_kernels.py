@@ -10,6 +10,9 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
@@ -24,6 +27,7 @@ from tofcut.tracker import (
     multicut_kernels,
     pieces_kernels,
     reference,
+    stats,
     stats_kernels,
 )
 from tofcut.tracker.background import MEDIAN_SHARES
@@ -456,6 +460,37 @@ def test_whether_the_median_lies_above_a_value_is_the_compiled_medians_answer():
     assert not stats_kernels.median_above(values, 0.2)
     values[1] = np.nan
     assert not stats_kernels.median_above(values, 0.0)
+
+
+_POINTS = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(4, 3000), st.just(3)),
+    elements=st.floats(-1e3, 1e3, allow_nan=False, allow_subnormal=True),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_POINTS, st.integers(-3, 3))
+def test_a_clouds_covariance_is_numpys(points, scale):
+    # centred point by point in order, as numpy sums an F-ordered points.T
+    points = points * 10.0**scale
+    np.testing.assert_array_equal(stats.covariance(points), np.cov(points.T))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        st.integers(1, 2000),
+        elements=st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, 1.0]),
+    ),
+    st.floats(0.0, 100.0),
+)
+def test_a_percentile_is_numpys(values, q):
+    # ties (0 and 1 drawn often), and numpy's own rules for an inf or a nan
+    with np.errstate(invalid="ignore"):
+        got, want = stats.percentile(values, q), np.percentile(values, q)
+    assert got == want or (np.isnan(got) and np.isnan(want))
 
 
 def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():

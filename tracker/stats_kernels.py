@@ -1,5 +1,6 @@
 """Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array
-(and whether it lies above a value), and 3×3 medians over an image.
+(and whether it lies above a value), 3×3 medians over an image, and for a track's points the
+two middle values of a percentile and the centring of their covariance.
 """
 
 from __future__ import annotations
@@ -78,6 +79,40 @@ def median(values: F64) -> float:
     for x in a[1 : n // 2 - offset]:
         lower = max(lower, x)
     return (lower + upper) / 2.0
+
+
+@kernel((F64_1D, 1))
+def order_pair(values: F64, k: int) -> tuple[bool, float, float]:
+    """The k-th and (k + 1)-th smallest of `values` (0 ≤ k, k + 1 < its size), as
+    `np.partition(values, [k, k + 1])[k : k + 2]` has them, where every value is finite;
+    False (and nans) where one is not."""
+    for x in values:
+        if not np.isfinite(x):
+            return False, np.nan, np.nan
+    a = values.copy()
+    lo = _select(a, 0, a.size - 1, k)
+    # quickselect leaves nothing smaller than the k-th after it
+    hi = a[k + 1]
+    for x in a[k + 2 :]:
+        hi = min(hi, x)
+    return True, lo, float(hi)
+
+
+@kernel((F64_2D,))
+def centred(points: F64) -> F64:
+    """(N, 3) C-ordered `points` less their mean, as `np.cov` centres them: numpy sums the
+    columns of `points.T` (an F-ordered array) point by point, in order, from 0."""
+    n = points.shape[0]
+    mean = np.zeros(3)
+    for m in range(n):
+        for a in range(3):
+            mean[a] += points[m, a]
+    mean /= n
+    out = np.empty((n, 3))
+    for m in range(n):
+        for a in range(3):
+            out[m, a] = points[m, a] - mean[a]
+    return out
 
 
 @kernel((F64_1D, 1.0))
