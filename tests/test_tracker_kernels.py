@@ -242,6 +242,24 @@ def test_point_stats_are_numpys_mean_min_and_max():
     np.testing.assert_array_equal(hi, points.max(axis=0))
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.int32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 9)
+    )
+)
+def test_piece_boxes_and_sizes_are_scipys_and_numpys(pieces):
+    from scipy import ndimage
+
+    boxes = measure_kernels.piece_boxes(pieces)
+    want = ndimage.find_objects(pieces)
+    assert len(boxes) == len(want)
+    for got, box in zip(boxes.tolist(), want, strict=True):
+        rows, cols = box or (slice(0, 0), slice(0, 0))
+        assert got == [rows.start, rows.stop, cols.start, cols.stop]
+    np.testing.assert_array_equal(measure_kernels.piece_sizes(pieces), np.bincount(pieces.ravel()))
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 

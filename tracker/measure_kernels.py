@@ -1,5 +1,6 @@
 """Measuring tracks from their masks, compiled (see `tofcut.tracker.compiled`): each mask's
-box and points, their mean and extent, and how many pixels of each piece each track holds.
+box and points, their mean and extent, how many pixels of each piece each track holds, and
+each piece's box and size.
 """
 
 from __future__ import annotations
@@ -167,3 +168,44 @@ def seams(
                     meet[k] += 1
                     joined[k] += math.sqrt(x * x + y * y + z * z) <= step_m
     return sizes, meet, joined
+
+
+@kernel((I32_2D,))
+def piece_boxes(pieces: I32) -> I64:
+    """(n, 4) the box of each piece 1..n of `pieces` (n the largest number in it; first row,
+    row past the last, first column, column past the last, as `ndimage.find_objects` has
+    them; 0s for a number no pixel holds)."""
+    h, w = pieces.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            n = max(n, pieces[v, u])
+    boxes = np.zeros((n, 4), np.int64)
+    seen = np.zeros(n, np.bool_)
+    for v in range(h):
+        for u in range(w):
+            r = pieces[v, u] - 1
+            if r < 0:
+                continue
+            if not seen[r]:
+                seen[r] = True
+                boxes[r, 0], boxes[r, 2], boxes[r, 3] = v, u, u + 1
+            boxes[r, 1] = v + 1
+            boxes[r, 2] = min(boxes[r, 2], u)
+            boxes[r, 3] = max(boxes[r, 3], u + 1)
+    return boxes
+
+
+@kernel((I32_2D,))
+def piece_sizes(pieces: I32) -> I64:
+    """`np.bincount(pieces.ravel())` of pieces numbered from 0 up: each number's pixels."""
+    h, w = pieces.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            n = max(n, pieces[v, u])
+    sizes = np.zeros(n + 1, np.int64)
+    for v in range(h):
+        for u in range(w):
+            sizes[pieces[v, u]] += 1
+    return sizes

@@ -188,7 +188,7 @@ class Roster:
         corners, starts, held = measure_kernels.label_points(
             labels, frame.xyz, np.array([t.id for t in self.tracks], np.int64)
         )
-        piece_boxes: list[tuple[slice, slice] | None] | None = None
+        piece_boxes: I64 | None = None  # (pieces, 4), as `measure_kernels.piece_boxes`
         for k, t in enumerate(self.tracks):
             r0, r1, c0, c1 = corners[k].tolist()
             box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
@@ -205,11 +205,11 @@ class Roster:
                     # its shape, and a person may have moved a limb where its prediction
                     # did not reach
                     if piece_boxes is None:
-                        piece_boxes = ndimage.find_objects(pieces)
+                        piece_boxes = measure_kernels.piece_boxes(pieces)
                     beside = self._continuing(frame, mask, box, pieces, touching[t.id], piece_boxes)
                     if beside.size:
                         # all of it lies within its box and those of the pieces it takes
-                        win = _union([box] + [piece_boxes[r - 1] for r in beside.tolist()])
+                        win = _union([box] + [_slices(piece_boxes[r - 1]) for r in beside.tolist()])
                         taken = np.zeros(len(piece_boxes) + 1, bool)  # by piece
                         taken[beside] = True
                         grown = taken[pieces[win]] | _placed(mask, box, win)
@@ -345,18 +345,15 @@ class Roster:
         box: Box,
         pieces: I32,
         near: I32,
-        piece_boxes: list[Box | None],
+        piece_boxes: I64,
     ) -> I32:
         """Which pieces beside a track's `mask` (within its `box`) are more of the same
         object (pieces smaller than MIN_PIECE are noise): for rigid targets, those that go on
         from the mask's surface without a 3D step (`joined_m`); for targets that bend, all (a
-        limb). `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
-        corners = np.zeros((near.size, 4), np.int64)
-        for k, r in enumerate(near.tolist()):
-            rows, cols = piece_boxes[r - 1] or (slice(0, 0), slice(0, 0))
-            corners[k] = rows.start, rows.stop, cols.start, cols.stop
+        limb). `piece_boxes` are the pieces' boxes (`measure_kernels.piece_boxes`)."""
+        ids = near.astype(np.int64)
         sizes, meet, joined = measure_kernels.seams(
-            mask, box[0].start, box[1].start, pieces, near.astype(np.int64), corners, frame.xyz,
+            mask, box[0].start, box[1].start, pieces, ids, piece_boxes[ids - 1], frame.xyz,
             self.params.joined_m,
         )  # fmt: skip
         keep = []
@@ -376,7 +373,7 @@ class Roster:
         row (within `gate_m`), a track. A piece most of which a track could claim is a
         fringe of that track, not a new object."""
         p = self.params
-        sizes = np.bincount(pieces.ravel())
+        sizes = measure_kernels.piece_sizes(pieces)
         claim = (p.background_cap - p.object_cost) / p.beta
         found = []
         for r in np.nonzero(sizes >= p.min_pixels)[0]:
@@ -451,10 +448,17 @@ def _placed(mask: B, box: Box, win: Box) -> B:
     return out
 
 
-def _union(boxes: list[Box | None]) -> Box:
-    """The smallest box holding all of `boxes` (none of them None)."""
-    rows = [b[0] for b in boxes if b is not None]
-    cols = [b[1] for b in boxes if b is not None]
+def _slices(corners: I64) -> Box:
+    """A box from its corners (first row, row past the last, first column, column past the
+    last)."""
+    r0, r1, c0, c1 = corners.tolist()
+    return slice(r0, r1), slice(c0, c1)
+
+
+def _union(boxes: list[Box]) -> Box:
+    """The smallest box holding all of `boxes`."""
+    rows = [b[0] for b in boxes]
+    cols = [b[1] for b in boxes]
     return (
         slice(min(r.start for r in rows), max(r.stop for r in rows)),
         slice(min(c.start for c in cols), max(c.stop for c in cols)),

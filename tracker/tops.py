@@ -44,13 +44,9 @@ one time in a hundred), no surface is told facing up."""
 def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     """The pixels of `body` on surfaces facing up from the belt (their slope over `BASELINE`
     pixels below `MAX_SLOPE`); None where the range noise makes the slope meaningless."""
-    where = body & np.isfinite(xyz[..., 2])
-    if not where.any():
-        return where
-    steep, *ratios = tops_kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    up, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
     if any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return None
-    up: B = where & ~steep
     return up
 
 
