@@ -30,7 +30,7 @@ from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
 from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
-from tofcut.tracker.tops import facing_up, one_object
+from tofcut.tracker.tops import facing_up, level, seamless
 
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
@@ -256,15 +256,19 @@ class Roster:
 
     def _join(self, frame: Frame, labels: U16, noise: F64, belt: BeltGeometry | None) -> list[int]:
         """Rigid objects on a known belt: two tracks whose masks meet with no step between
-        them and no two tops at different heights (`tops.one_object`) for `split_frames`
-        frames running hold faces of one object (its side seen first, a rim, the far end
-        of a roll): the younger is handed to the older. Changes `labels`; the ids ended."""
+        them and no two tops at different heights (`tops.one_object`'s two steps, `seamless`
+        and `level`) for `split_frames` frames running hold faces of one object (its side
+        seen first, a rim, the far end of a roll): the younger is handed to the older.
+        Changes `labels`; the ids ended."""
         p = self.params
         if not p.rigid or belt is None or len(self.tracks) < 2:
             self.joining = {}
             return []
-        up = facing_up(labels > 0, frame.xyz, noise, belt)
-        pairs = one_object(labels, frame.xyz, up, belt, p.joined_m)
+        pairs = seamless(labels, frame.xyz, p.joined_m)
+        if pairs:  # what faces up is weighed only where two tracks meet so
+            pairs = level(
+                pairs, labels, facing_up(labels > 0, frame.xyz, noise, belt), frame.xyz, belt
+            )
         self.joining = {pair: self.joining.get(pair, 0) + 1 for pair in pairs}
         ended: list[int] = []
         for (older, younger), frames in sorted(self.joining.items()):
