@@ -309,6 +309,31 @@ def test_3x3_medians_are_scipys_and_a_nan_is_placed_as_an_insertion_sort_places_
         np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
 
 
+@settings(max_examples=100, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        hnp.array_shapes(min_dims=2, max_dims=2, max_side=8),
+        elements=st.sampled_from([0.0, -0.0, 1.0, 2.0, -3.5]) | st.floats(-10, 10),
+    )
+)
+def test_a_3x3_median_by_sorted_columns_is_the_median_of_the_nine(values):
+    # ties drawn often; edges repeated, as the background's cost takes its medians
+    h, w = values.shape
+    window, column = np.empty(9), np.empty((w, 3))
+    for v in range(h):
+        for u in range(w):
+            assert stats_kernels.sorted_column(values, v, u, column[u])
+        for u in range(w):
+            left, right = max(u - 1, 0), min(u + 1, w - 1)
+            got = stats_kernels.median3_from_columns(column[left], column[u], column[right])
+            rows = [max(v - 1, 0), v, min(v + 1, h - 1)]
+            want = np.median(values[np.ix_(rows, [left, u, right])])
+            assert got == want == stats_kernels.median3(values, v, u, window)
+    values[0, 0] = np.nan
+    assert not stats_kernels.sorted_column(values, 0, 0, column[0])
+
+
 def test_seams_are_counted_as_the_numpy_form_counts_them():
     from tofcut.tracker.neighbours import pair_slices
 

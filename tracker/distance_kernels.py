@@ -211,6 +211,7 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
                 axes[k] = a
         order = _ascending(cloud[:, axes[k]], lo, hi)
         # within each slab, along the next widest axis: its boxes are then small both ways
+        keys = np.empty(SLAB)
         for s in range(0, order.size, SLAB):
             end = min(order.size, s + SLAB)
             across, widest = 0, -1.0
@@ -223,14 +224,17 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
                 if a != axes[k] and high - low > widest:
                     widest = high - low
                     across = a
-            for n in range(s + 1, end):  # insertion sort (of the order): a slab is short
-                j = order[n]
-                key = cloud[j, across]
+            for n in range(s, end):
+                keys[n - s] = cloud[order[n], across]
+            for n in range(1, end - s):  # insertion sort, keys alongside: a slab is short
+                j, key = order[s + n], keys[n]
                 m = n - 1
-                while m >= s and cloud[order[m], across] > key:
-                    order[m + 1] = order[m]
+                while m >= 0 and keys[m] > key:
+                    keys[m + 1] = keys[m]
+                    order[s + m + 1] = order[s + m]
                     m -= 1
-                order[m + 1] = j
+                keys[m + 1] = key
+                order[s + m + 1] = j
         for n in range(order.size):
             i = order[n]
             out[starts[k] + n, 0] = cloud[i, 0]

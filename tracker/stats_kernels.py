@@ -223,6 +223,33 @@ def median3(values: F64, v: int, u: int, window: F64) -> float:
     )  # fmt: skip
 
 
+@helper
+def sorted_column(values: F64, v: int, u: int, column: F64) -> bool:
+    """Into `column`, the values of (v − 1, u), (v, u) and (v + 1, u) in `values` (rows at
+    the edges repeated) in ascending order, where none is nan (whether none is)."""
+    h = values.shape[0]
+    a, b, c = values[max(v - 1, 0), u], values[v, u], values[min(v + 1, h - 1), u]
+    if np.isnan(a) or np.isnan(b) or np.isnan(c):
+        return False
+    a, b = min(a, b), max(a, b)
+    b, c = min(b, c), max(b, c)
+    a, b = min(a, b), max(a, b)
+    column[0], column[1], column[2] = a, b, c
+    return True
+
+
+@helper
+def median3_from_columns(left: F64, middle: F64, right: F64) -> float:
+    """The median of nine values, none nan, given as three sorted columns of three (as
+    `sorted_column` leaves them): the median of the largest of the smallest, the median of
+    the middles and the smallest of the largest (Paeth's 3×3 median by columns)."""
+    low = max(left[0], middle[0], right[0])
+    high = min(left[2], middle[2], right[2])
+    a, b, c = left[1], middle[1], right[1]
+    mid = max(min(a, b), min(max(a, b), c))
+    return float(max(min(low, mid), min(max(low, mid), high)))
+
+
 @kernel((F64_2D, B_2D, I64_2D))
 def median_within(values: F64, where: B, radius: I64) -> F64:
     """`values` with each pixel of `where` whose `radius` r is 1 or more replaced by the

@@ -35,20 +35,28 @@ def facing_pixels(
     for v in range(r0, r1):
         for u in range(c0, c1):
             where[v - r0, u - c0] = body[v, u] and np.isfinite(xyz[v, u, 2])
-    pts = np.empty((r1 - r0, c1 - c0, 3))  # the 3×3 means, at `where`'s pixels only
+    # the 3×3 means, at `where`'s pixels only: from a padded copy of its points and 1s,
+    # 0 elsewhere (a sum begun at +0 is not changed by adding 0: the same sums, in the same
+    # order, without a test for each neighbour)
+    padded = np.zeros((r1 - r0 + 2, c1 - c0 + 2, 4))
+    for v in range(r1 - r0):
+        for u in range(c1 - c0):
+            if where[v, u]:
+                for a in range(3):
+                    padded[v + 1, u + 1, a] = xyz[v + r0, u + c0, a]
+                padded[v + 1, u + 1, 3] = 1.0
+    pts = np.empty((r1 - r0, c1 - c0, 3))
     for v in range(r1 - r0):
         for u in range(c1 - c0):
             if not where[v, u]:
                 continue
-            n = 0
-            sx = sy = sz = 0.0
-            for v2 in range(max(v - 1, 0), min(v + 2, r1 - r0)):
-                for u2 in range(max(u - 1, 0), min(u + 2, c1 - c0)):
-                    if where[v2, u2]:
-                        sx += xyz[v2 + r0, u2 + c0, 0]
-                        sy += xyz[v2 + r0, u2 + c0, 1]
-                        sz += xyz[v2 + r0, u2 + c0, 2]
-                        n += 1
+            n = sx = sy = sz = 0.0
+            for v2 in range(v, v + 3):
+                for u2 in range(u, u + 3):
+                    sx += padded[v2, u2, 0]
+                    sy += padded[v2, u2, 1]
+                    sz += padded[v2, u2, 2]
+                    n += padded[v2, u2, 3]
             pts[v, u, 0], pts[v, u, 1], pts[v, u, 2] = sx / n, sy / n, sz / n
     steep = np.zeros((r1 - r0, c1 - c0), np.bool_)
     ratios = np.empty((2, (r1 - r0) * (c1 - c0)))
