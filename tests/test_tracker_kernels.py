@@ -248,7 +248,7 @@ def test_point_stats_are_numpys_mean_min_and_max():
         np.int32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 9)
     )
 )
-def test_piece_boxes_and_sizes_are_scipys_and_numpys(pieces):
+def test_piece_boxes_sizes_and_holdings_are_scipys_and_numpys(pieces):
     from scipy import ndimage
 
     boxes = measure_kernels.piece_boxes(pieces)
@@ -258,6 +258,13 @@ def test_piece_boxes_and_sizes_are_scipys_and_numpys(pieces):
         rows, cols = box or (slice(0, 0), slice(0, 0))
         assert got == [rows.start, rows.stop, cols.start, cols.stop]
     np.testing.assert_array_equal(measure_kernels.piece_sizes(pieces), np.bincount(pieces.ravel()))
+    # and by label's row (rows 1.. hold labels 1..; label 4, row 0, is none of them)
+    labels = (pieces[::-1] % 5).astype(np.uint16)
+    row = np.array([0, 1, 2, 3, 0], np.int64)
+    n = int(pieces.max()) + 1
+    want = np.bincount((row[labels] * n + pieces).ravel(), minlength=4 * n).reshape(4, n)
+    want[0], want[:, 0] = 0, 0
+    np.testing.assert_array_equal(measure_kernels.held_pieces(labels, pieces, row, 4, n), want)
 
 
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():

@@ -297,8 +297,8 @@ class Roster:
         row = np.zeros(max(t.id for t in self.tracks) + 1, np.int64)
         for k, t in enumerate(self.tracks):
             row[t.id] = k + 1
+        # by track, the pixels of each piece (none of piece 0, which is no piece)
         held = measure_kernels.held_pieces(labels, pieces, row, len(self.tracks) + 1, n_pieces)[1:]
-        held[:, 0] = 0
         size = held.sum(axis=1)
         big = (held >= p.min_pixels) & (
             held >= np.minimum(p.split_share * size[:, None], p.split_pixels)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import F64, I64, B
-from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, I64_2D, helper, kernel
+from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, helper, kernel
 
 
 @helper
@@ -250,24 +250,16 @@ def median3_from_columns(left: F64, middle: F64, right: F64) -> float:
     return float(max(min(low, mid), min(max(low, mid), high)))
 
 
-@kernel((F64_2D, B_2D, I64_2D))
-def median_within(values: F64, where: B, radius: I64) -> F64:
-    """`values` with each pixel of `where` whose `radius` r is 1 or more replaced by the
-    median of its (2r+1)×(2r+1) neighbours in `where` (itself included): one surface's noise
-    quietened without taking in what lies beyond its edge."""
+@helper
+def median_in(values: F64, where: B, v: int, u: int, r: int, window: F64) -> float:
+    """The median of the values of `where`'s pixels in the (2r+1)×(2r+1) window round (v, u)
+    (one of them; `window` room for their values): one surface's noise quietened without
+    taking in what lies beyond its edge."""
     h, w = values.shape
-    out = values.copy()
-    window = np.empty((2 * max(int(radius.max()) if radius.size else 0, 1) + 1) ** 2)
-    for v in range(h):
-        for u in range(w):
-            r = radius[v, u]
-            if not (where[v, u] and r > 0):
-                continue
-            k = 0
-            for y in range(max(v - r, 0), min(v + r + 1, h)):
-                for x in range(max(u - r, 0), min(u + r + 1, w)):
-                    if where[y, x]:
-                        insert_sorted(window, k, values[y, x])
-                        k += 1
-            out[v, u] = window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2])
-    return out
+    k = 0
+    for y in range(max(v - r, 0), min(v + r + 1, h)):
+        for x in range(max(u - r, 0), min(u + r + 1, w)):
+            if where[y, x]:
+                insert_sorted(window, k, values[y, x])
+                k += 1
+    return float(window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2]))

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from tofcut._types import F64, I32, I64, B
+from tofcut.tracker.box_kernels import box_of
 from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
 
 
@@ -21,13 +22,9 @@ def facing_pixels(
     pixels on a span of `baseline` pixels (along a row or a column) whose rise along
     `normal` is more than `max_slope` times their spacing across it; and, per direction,
     each pair's slope noise (a 3×3 mean's noise twice, over the spacing). Only the box of
-    `where` is gone over: every pixel and pair it weighs lies in it."""
+    `body` is gone over: every pixel and pair it weighs lies in it."""
     h, w = body.shape
-    r0, r1, c0, c1 = h, 0, w, 0
-    for v in range(h):
-        for u in range(w):
-            if body[v, u] and np.isfinite(xyz[v, u, 2]):
-                r0, r1, c0, c1 = min(r0, v), max(r1, v + 1), min(c0, u), max(c1, u + 1)
+    r0, r1, c0, c1 = box_of(body)
     up = np.zeros((h, w), np.bool_)
     if r1 <= r0:
         return up, np.empty(0), np.empty(0)
