@@ -267,6 +267,19 @@ def test_piece_boxes_sizes_and_holdings_are_scipys_and_numpys(pieces):
     np.testing.assert_array_equal(measure_kernels.held_pieces(labels, pieces, row, 4, n), want)
 
 
+@settings(max_examples=100, deadline=None)
+@given(hnp.arrays(np.bool_, hnp.array_shapes(min_dims=2, max_dims=2, max_side=12)), st.data())
+def test_a_masks_points_are_numpys_boolean_index(mask, data):
+    from tofcut.tracker import frame_kernels
+
+    h, w = mask.shape
+    top, left = data.draw(st.integers(0, 5)), data.draw(st.integers(0, 5))
+    xyz = np.arange((h + top + 3) * (w + left + 2) * 3, dtype=float).reshape(h + top + 3, -1, 3)
+    np.testing.assert_array_equal(
+        frame_kernels.points_in(xyz, mask, top, left), xyz[top : top + h, left : left + w][mask]
+    )
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 

@@ -17,7 +17,13 @@ from dataclasses import dataclass
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import background_kernels, components_kernels, measure_kernels, pieces_kernels
+from tofcut.tracker import (
+    background_kernels,
+    components_kernels,
+    frame_kernels,
+    measure_kernels,
+    pieces_kernels,
+)
 from tofcut.tracker.background import (
     MEDIAN_SHARES,
     BackgroundModel,
@@ -69,7 +75,7 @@ class Pieces:
             bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), seen, q
         )
         if self.params.rigid and belt is not None:
-            body[body] = on_belt_height(frame.xyz[body], belt)
+            body[body] = on_belt_height(frame_kernels.points_in(frame.xyz, body, 0, 0), belt)
         # a step of `connect_m` parts touching objects of different heights, or three
         # times the noise where that is more: a surface in loud noise is not broken into
         # specks by steps within the noise

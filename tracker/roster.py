@@ -21,7 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import measure_kernels
+from tofcut.tracker import frame_kernels, measure_kernels
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
@@ -208,15 +208,16 @@ class Roster:
                         piece_boxes = measure_kernels.piece_boxes(pieces)
                     beside = self._continuing(frame, mask, box, pieces, touching[t.id], piece_boxes)
                     if beside.size:
-                        # all of it lies within its box and those of the pieces it takes
-                        win = _union([box] + [_slices(piece_boxes[r - 1]) for r in beside.tolist()])
+                        # all of it lies within its box and those of the pieces it takes,
+                        # which are whole (none was taken before): its box is theirs
+                        win = _union(box, piece_boxes[beside - 1])
                         taken = np.zeros(len(piece_boxes) + 1, bool)  # by piece
                         taken[beside] = True
                         grown = taken[pieces[win]] | _placed(mask, box, win)
                         pieces[win][grown] = 0
                         labels[win][grown] = t.id
-                        box = _shifted(_box_of(grown), win)
-                        pts = frame.xyz[win][grown]
+                        box = win
+                        pts = frame_kernels.points_in(frame.xyz, grown, win[0].start, win[1].start)
                 t.see(pts, box, entering, belt)
             else:
                 if box is not None:
@@ -386,7 +387,7 @@ class Roster:
             piece = pieces == r
             if not _solid(piece, p.min_pixels):
                 continue
-            pts = frame.xyz[piece]
+            pts = frame_kernels.points_in(frame.xyz, piece, 0, 0)
             centroid = pts.mean(axis=0)
             if (
                 self.tracks
@@ -452,27 +453,14 @@ def _placed(mask: B, box: Box, win: Box) -> B:
     return out
 
 
-def _slices(corners: I64) -> Box:
-    """A box from its corners (first row, row past the last, first column, column past the
-    last)."""
-    r0, r1, c0, c1 = corners.tolist()
+def _union(box: Box, corners: I64) -> Box:
+    """The smallest box holding `box` and the boxes of (n, 4) `corners` (first row, row past
+    the last, first column, column past the last)."""
+    rows, cols = box
+    r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
+    for a0, a1, b0, b1 in corners.tolist():
+        r0, r1, c0, c1 = min(r0, a0), max(r1, a1), min(c0, b0), max(c1, b1)
     return slice(r0, r1), slice(c0, c1)
-
-
-def _union(boxes: list[Box]) -> Box:
-    """The smallest box holding all of `boxes`."""
-    rows = [b[0] for b in boxes]
-    cols = [b[1] for b in boxes]
-    return (
-        slice(min(r.start for r in rows), max(r.stop for r in rows)),
-        slice(min(c.start for c in cols), max(c.stop for c in cols)),
-    )
-
-
-def _shifted(box: Box, win: Box) -> Box:
-    """A box found within the window `win`, in the frame's coordinates."""
-    r, c = win[0].start, win[1].start
-    return slice(box[0].start + r, box[0].stop + r), slice(box[1].start + c, box[1].stop + c)
 
 
 def _box_of(mask: B) -> tuple[slice, slice]:
