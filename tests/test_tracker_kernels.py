@@ -10,6 +10,9 @@ from types import SimpleNamespace
 import numba
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
 
 from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
@@ -24,6 +27,7 @@ from tofcut.tracker import (
     multicut_kernels,
     pieces_kernels,
     reference,
+    stats,
     stats_kernels,
 )
 from tofcut.tracker.background import MEDIAN_SHARES
@@ -238,6 +242,44 @@ def test_point_stats_are_numpys_mean_min_and_max():
     np.testing.assert_array_equal(hi, points.max(axis=0))
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.int32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 9)
+    )
+)
+def test_piece_boxes_sizes_and_holdings_are_scipys_and_numpys(pieces):
+    from scipy import ndimage
+
+    boxes = measure_kernels.piece_boxes(pieces)
+    want = ndimage.find_objects(pieces)
+    assert len(boxes) == len(want)
+    for got, box in zip(boxes.tolist(), want, strict=True):
+        rows, cols = box or (slice(0, 0), slice(0, 0))
+        assert got == [rows.start, rows.stop, cols.start, cols.stop]
+    np.testing.assert_array_equal(measure_kernels.piece_sizes(pieces), np.bincount(pieces.ravel()))
+    # and by label's row (rows 1.. hold labels 1..; label 4, row 0, is none of them)
+    labels = (pieces[::-1] % 5).astype(np.uint16)
+    row = np.array([0, 1, 2, 3, 0], np.int64)
+    n = int(pieces.max()) + 1
+    want = np.bincount((row[labels] * n + pieces).ravel(), minlength=4 * n).reshape(4, n)
+    want[0], want[:, 0] = 0, 0
+    np.testing.assert_array_equal(measure_kernels.held_pieces(labels, pieces, row, 4, n), want)
+
+
+@settings(max_examples=100, deadline=None)
+@given(hnp.arrays(np.bool_, hnp.array_shapes(min_dims=2, max_dims=2, max_side=12)), st.data())
+def test_a_masks_points_are_numpys_boolean_index(mask, data):
+    from tofcut.tracker import frame_kernels
+
+    h, w = mask.shape
+    top, left = data.draw(st.integers(0, 5)), data.draw(st.integers(0, 5))
+    xyz = np.arange((h + top + 3) * (w + left + 2) * 3, dtype=float).reshape(h + top + 3, -1, 3)
+    np.testing.assert_array_equal(
+        frame_kernels.points_in(xyz, mask, top, left), xyz[top : top + h, left : left + w][mask]
+    )
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 
@@ -285,6 +327,31 @@ def test_3x3_medians_are_scipys_and_a_nan_is_placed_as_an_insertion_sort_places_
         for v, u in zip(*np.nonzero(where), strict=True):
             want[v, u] = inserted(padded[v : v + 3, u : u + 3].ravel().tolist())
         np.testing.assert_array_equal(stats_kernels.median3_at(values, where), want)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        hnp.array_shapes(min_dims=2, max_dims=2, max_side=8),
+        elements=st.sampled_from([0.0, -0.0, 1.0, 2.0, -3.5]) | st.floats(-10, 10),
+    )
+)
+def test_a_3x3_median_by_sorted_columns_is_the_median_of_the_nine(values):
+    # ties drawn often; edges repeated, as the background's cost takes its medians
+    h, w = values.shape
+    window, column = np.empty(9), np.empty((w, 3))
+    for v in range(h):
+        for u in range(w):
+            assert stats_kernels.sorted_column(values, v, u, column[u])
+        for u in range(w):
+            left, right = max(u - 1, 0), min(u + 1, w - 1)
+            got = stats_kernels.median3_from_columns(column[left], column[u], column[right])
+            rows = [max(v - 1, 0), v, min(v + 1, h - 1)]
+            want = np.median(values[np.ix_(rows, [left, u, right])])
+            assert got == want == stats_kernels.median3(values, v, u, window)
+    values[0, 0] = np.nan
+    assert not stats_kernels.sorted_column(values, 0, 0, column[0])
 
 
 def test_seams_are_counted_as_the_numpy_form_counts_them():
@@ -456,6 +523,37 @@ def test_whether_the_median_lies_above_a_value_is_the_compiled_medians_answer():
     assert not stats_kernels.median_above(values, 0.2)
     values[1] = np.nan
     assert not stats_kernels.median_above(values, 0.0)
+
+
+_POINTS = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(4, 3000), st.just(3)),
+    elements=st.floats(-1e3, 1e3, allow_nan=False, allow_subnormal=True),
+)
+
+
+@settings(max_examples=300, deadline=None)
+@given(_POINTS, st.integers(-3, 3))
+def test_a_clouds_covariance_is_numpys(points, scale):
+    # centred point by point in order, as numpy sums an F-ordered points.T
+    points = points * 10.0**scale
+    np.testing.assert_array_equal(stats.covariance(points), np.cov(points.T))
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        st.integers(1, 2000),
+        elements=st.floats(allow_nan=True, allow_infinity=True) | st.sampled_from([0.0, 1.0]),
+    ),
+    st.floats(0.0, 100.0),
+)
+def test_a_percentile_is_numpys(values, q):
+    # ties (0 and 1 drawn often), and numpy's own rules for an inf or a nan
+    with np.errstate(invalid="ignore"):
+        got, want = stats.percentile(values, q), np.percentile(values, q)
+    assert got == want or (np.isnan(got) and np.isnan(want))
 
 
 def test_sorted_surfaces_hold_the_same_points_in_slabs_in_order_along_their_axis():

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from tofcut._types import I32, I64, B
+from tofcut.tracker.box_kernels import pixels_of
 from tofcut.tracker.compiled import B_2D, helper, kernel
 
 
@@ -40,31 +41,31 @@ def number_sets(parent: I32 | I64, first: int, base: int) -> I64:
 @kernel((B_2D,))
 def label_pieces(body: B) -> I32:
     """`scipy.ndimage.label(body)[0]`: the 4-connected pieces of `body`, numbered from 1 in
-    the order of each one's first pixel in row-major order (0 elsewhere)."""
+    the order of each one's first pixel in row-major order (0 elsewhere). Only `body`'s
+    pixels are gone over, listed first."""
     h, w = body.shape
     out = np.zeros((h, w), np.int32)
-    parent = np.zeros(h * w // 2 + 2, np.int32)
+    count, at_v, at_u = pixels_of(body)
+    parent = np.zeros(count + 2, np.int32)
     n = 0  # labels so far
-    for v in range(h):
-        for u in range(w):
-            if not body[v, u]:
-                continue
-            up = out[v - 1, u] if v > 0 else 0
-            left = out[v, u - 1] if u > 0 else 0
-            if up == 0 and left == 0:
-                n += 1
-                parent[n] = n
-                out[v, u] = n
-            elif up == 0 or left == 0 or up == left:
-                out[v, u] = max(up, left)
-            else:
-                a, b = root(parent, up), root(parent, left)
-                parent[max(a, b)] = min(a, b)  # a piece's root is its first label
-                out[v, u] = left
+    for i in range(count):
+        v, u = at_v[i], at_u[i]
+        up = out[v - 1, u] if v > 0 else 0
+        left = out[v, u - 1] if u > 0 else 0
+        if up == 0 and left == 0:
+            n += 1
+            parent[n] = n
+            out[v, u] = n
+        elif up == 0 or left == 0 or up == left:
+            out[v, u] = max(up, left)
+        else:
+            a, b = root(parent, up), root(parent, left)
+            parent[max(a, b)] = min(a, b)  # a piece's root is its first label
+            out[v, u] = left
     final = number_sets(parent[: n + 1], 1, 1)
-    for v in range(h):
-        for u in range(w):
-            out[v, u] = final[out[v, u]]
+    for i in range(count):
+        v, u = at_v[i], at_u[i]
+        out[v, u] = final[out[v, u]]
     return out
 
 

@@ -24,7 +24,12 @@ from tofcut.tracker.compiled import (
 )
 from tofcut.tracker.components_kernels import parts
 from tofcut.tracker.neighbours import DU, DV, FACTORS
-from tofcut.tracker.stats_kernels import insert_sorted, median3
+from tofcut.tracker.stats_kernels import (
+    insert_sorted,
+    median3,
+    median3_from_columns,
+    sorted_column,
+)
 
 
 @kernel((F64_3D, B_2D, B_2D, 1.0))
@@ -286,6 +291,11 @@ def background_cost(
     out = np.empty((h, w))
     top = shares.size - 1
     window = np.empty((2 * top + 1) ** 2)
+    # a row's columns of three, sorted (`sorted_column`): each made once per row, for the
+    # 3×3 medians of the loud pixels beside it (the median is the same one value either way)
+    columns = np.empty((w, 3))
+    sorted_ok = np.zeros(w, np.bool_)
+    made_for = np.full(w, -1, np.int64)
     for v in range(h):
         for u in range(w):
             usable = valid[v, u] and known[v, u]
@@ -294,9 +304,18 @@ def background_cost(
                 r = 1
                 while r < top and noise_factor * s * shares[r] > loud_sigma:
                     r += 1
-                near = (
-                    median3(nearer, v, u, window) if r == 1 else _median_at(nearer, v, u, r, window)
-                )
+                if r == 1:
+                    left, right = max(u - 1, 0), min(u + 1, w - 1)
+                    for c in (left, u, right):
+                        if made_for[c] != v:
+                            sorted_ok[c] = sorted_column(nearer, v, c, columns[c])
+                            made_for[c] = v
+                    if sorted_ok[left] and sorted_ok[u] and sorted_ok[right]:
+                        near = median3_from_columns(columns[left], columns[u], columns[right])
+                    else:  # a nan among them: placed as the insertion sort places it
+                        near = median3(nearer, v, u, window)
+                else:
+                    near = _median_at(nearer, v, u, r, window)
                 s = s * shares[r]
             z = (model[v, u] - (model[v, u] - near)) / s if usable else 0.0
             z = z - deadband

@@ -194,6 +194,19 @@ def _ascending(keys: F64, lo: float, hi: float) -> I64:
     return order
 
 
+@helper
+def _extent(points: F64) -> tuple[F64, F64]:
+    """The smallest and largest of each coordinate of (N ≥ 1, 3) points, as numpy's `min`
+    and `max` take them (a nan is both)."""
+    low, high = points[0].copy(), points[0].copy()
+    for n in range(1, points.shape[0]):
+        for a in range(3):
+            x = points[n, a]
+            low[a] = low[a] if (low[a] <= x or low[a] != low[a]) else x
+            high[a] = high[a] if (high[a] >= x or high[a] != high[a]) else x
+    return low, high
+
+
 @kernel((F64_2D, I64_1D))
 def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     """Each cloud `clouds[starts[k]:starts[k + 1]]` sorted along its widest axis, then each
@@ -201,39 +214,44 @@ def sort_surfaces(clouds: F64, starts: I64) -> tuple[F64, I64]:
     them), and the first axes."""
     out = np.empty_like(clouds)
     axes = np.zeros(starts.size - 1, np.int64)
+    keys = np.empty(SLAB)
     for k in range(starts.size - 1):
         cloud = clouds[starts[k] : starts[k + 1]]
+        low, high = _extent(cloud)
         widest, lo, hi = -1.0, 0.0, 0.0
         for a in range(3):
-            spread = cloud[:, a].max() - cloud[:, a].min()
+            spread = high[a] - low[a]
             if spread > widest:
-                widest, lo, hi = spread, cloud[:, a].min(), cloud[:, a].max()
+                widest, lo, hi = spread, low[a], high[a]
                 axes[k] = a
         order = _ascending(cloud[:, axes[k]], lo, hi)
+        pts = out[starts[k] : starts[k + 1]]  # the cloud in that order, sorted on in place
+        for n in range(order.size):
+            pts[n, 0], pts[n, 1], pts[n, 2] = (
+                cloud[order[n], 0],
+                cloud[order[n], 1],
+                cloud[order[n], 2],
+            )
         # within each slab, along the next widest axis: its boxes are then small both ways
         for s in range(0, order.size, SLAB):
             end = min(order.size, s + SLAB)
+            low, high = _extent(pts[s:end])
             across, widest = 0, -1.0
             for a in range(3):
-                first = cloud[order[s], a]
-                low, high = first, first
-                for n in range(s + 1, end):
-                    x = cloud[order[n], a]
-                    low, high = min(low, x), max(high, x)
-                if a != axes[k] and high - low > widest:
-                    widest = high - low
+                if a != axes[k] and high[a] - low[a] > widest:
+                    widest = high[a] - low[a]
                     across = a
-            for n in range(s + 1, end):  # insertion sort (of the order): a slab is short
-                j = order[n]
-                key = cloud[j, across]
+            for n in range(s, end):
+                keys[n - s] = pts[n, across]
+            for n in range(1, end - s):  # insertion sort, keys alongside: a slab is short
+                key, x, y, z = keys[n], pts[s + n, 0], pts[s + n, 1], pts[s + n, 2]
                 m = n - 1
-                while m >= s and cloud[order[m], across] > key:
-                    order[m + 1] = order[m]
+                while m >= 0 and keys[m] > key:
+                    keys[m + 1] = keys[m]
+                    pts[s + m + 1, 0] = pts[s + m, 0]
+                    pts[s + m + 1, 1] = pts[s + m, 1]
+                    pts[s + m + 1, 2] = pts[s + m, 2]
                     m -= 1
-                order[m + 1] = j
-        for n in range(order.size):
-            i = order[n]
-            out[starts[k] + n, 0] = cloud[i, 0]
-            out[starts[k] + n, 1] = cloud[i, 1]
-            out[starts[k] + n, 2] = cloud[i, 2]
+                keys[m + 1] = key
+                pts[s + m + 1, 0], pts[s + m + 1, 1], pts[s + m + 1, 2] = x, y, z
     return out, axes

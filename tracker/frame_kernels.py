@@ -1,11 +1,12 @@
-"""Checking a frame before the tracker takes it, compiled (see `tofcut.tracker.compiled`)."""
+"""Checking a frame before the tracker takes it, and taking the points of a mask, compiled
+(see `tofcut.tracker.compiled`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import F64
-from tofcut.tracker.compiled import F64_2D, F64_3D, kernel
+from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, kernel
 
 
 @kernel((F64_2D, F64_3D))
@@ -24,3 +25,25 @@ def all_finite(rng: F64, xyz: F64) -> bool:
             ):
                 return False
     return True
+
+
+@kernel((F64_3D, B_2D, 1, 1))
+def points_in(xyz: F64, mask: B, top: int, left: int) -> F64:
+    """(N, 3) the points of `mask`, a mask of the window of `xyz` whose first pixel is
+    (top, left), in row-major order: `xyz[top:top + h, left:left + w][mask]` (numpy's
+    boolean indexing of the (H, W, 3) points by an (H, W) mask is five times slower)."""
+    h, w = mask.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            n += mask[v, u]
+    out = np.empty((n, 3))
+    k = 0
+    for v in range(h):
+        for u in range(w):
+            if mask[v, u]:
+                out[k, 0] = xyz[top + v, left + u, 0]
+                out[k, 1] = xyz[top + v, left + u, 1]
+                out[k, 2] = xyz[top + v, left + u, 2]
+                k += 1
+    return out

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tofcut._types import F64
+from tofcut._types import F64, I64
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import measure_kernels, stats
@@ -116,14 +116,15 @@ class LiveTrack:
         whole = p.whole_fraction * usual <= m and (entering or m * p.whole_fraction <= usual)
         # a target that bends (a person) shows all of itself in every view
         self.measured = usual == 0 or whole or not p.rigid
+        summary = measure_kernels.point_stats(points)  # mean, min and max
         if self.measured:
-            self.filter.correct(measure_kernels.point_stats(points)[0])  # points.mean(axis=0)
+            self.filter.correct(summary[0])
             self.shape = 0.5 * self.shape + 0.5 * shape_of(points, SHAPE_FLOOR_M, belt)
             self.cloud = subsample(points, p.cloud_points)
             self.usual_pixels = max(float(m), USUAL_MEMORY * usual)
         self.hidden_s = 0.0
         self.hidden_frames = 0
-        self.last = self.report(points, box)
+        self.last = self.report(points, box, summary)
 
     def restart(self, points: F64, belt: BeltGeometry | None) -> None:
         """What it holds now (`points`) is a new view of it: its state starts again from this
@@ -175,10 +176,11 @@ class LiveTrack:
         x, y = pos[0] / pos[2], pos[1] / pos[2]
         return bool(xs.min() <= x <= xs.max() and ys.min() <= y <= ys.max())
 
-    def report(self, points: F64, box: Box) -> Track:
-        """What is reported of it seen this frame at `points`, within `box`."""
+    def report(self, points: F64, box: Box, summary: tuple[F64, F64, F64] | None = None) -> Track:
+        """What is reported of it seen this frame at `points`, within `box` (`summary`: the
+        points' `measure_kernels.point_stats`, where already taken)."""
         bbox = (box[1].start, box[0].start, box[1].stop, box[0].stop)
-        centroid, lo, hi = measure_kernels.point_stats(points)
+        centroid, lo, hi = summary or measure_kernels.point_stats(points)
         return Track(
             self.id, centroid, self.filter.velocity, lo, hi, bbox, len(points),
             points.astype(np.float32),
@@ -189,7 +191,16 @@ def subsample(points: F64, n: int) -> F64:
     """At most n of the points, evenly spread through the array (deterministic)."""
     if len(points) <= n:
         return points
-    return points[np.linspace(0, len(points) - 1, n).astype(np.int64)]
+    return points[_spread(len(points), n)]
+
+
+@functools.lru_cache(maxsize=256)
+def _spread(m: int, n: int) -> I64:
+    """`np.linspace(0, m - 1, n).astype(np.int64)`, made once for each (m, n) (read-only):
+    a track's pixel count changes little from frame to frame."""
+    out = np.linspace(0, m - 1, n).astype(np.int64)
+    out.flags.writeable = False
+    return out
 
 
 @functools.lru_cache(maxsize=4)

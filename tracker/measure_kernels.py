@@ -1,5 +1,6 @@
 """Measuring tracks from their masks, compiled (see `tofcut.tracker.compiled`): each mask's
-box and points, their mean and extent, and how many pixels of each piece each track holds.
+box and points, their mean and extent, how many pixels of each piece each track holds, and
+each piece's box and size.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ import math
 import numpy as np
 
 from tofcut._types import F64, I32, I64, U16, B
+from tofcut.tracker.box_kernels import box_of, pixels_of
 from tofcut.tracker.compiled import B_2D, F64_2D, F64_3D, I32_2D, I64_1D, I64_2D, U16_2D, kernel
 
 
@@ -20,7 +22,6 @@ def label_points(
     column, column past the last, as `ndimage.find_objects`; 0s where none), where each
     id's points start (ids + 1) in the (N, 3) 3D points of them all, each id's in
     row-major order (`xyz[box][labels[box] == id]`)."""
-    h, w = labels.shape
     top = 0
     for k in range(ids.size):
         top = max(top, ids[k])
@@ -29,14 +30,15 @@ def label_points(
         slot[ids[k]] = k
     boxes = np.zeros((ids.size, 4), np.int64)
     starts = np.zeros(ids.size + 1, np.int64)
-    which = np.full((h, w), -1, np.int64)  # each pixel's id's index, for the second pass
-    for v in range(h):
-        for u in range(w):
+    r0, r1, c0, c1 = box_of(labels)
+    which = np.full((r1 - r0, c1 - c0), -1, np.int64)  # each pixel's id's index, in the box
+    for v in range(r0, r1):
+        for u in range(c0, c1):
             lab = labels[v, u]
             k = slot[lab] if lab <= top else -1
             if k < 0:
                 continue
-            which[v, u] = k
+            which[v - r0, u - c0] = k
             if starts[k + 1] == 0:
                 boxes[k, 0], boxes[k, 2] = v, u
             boxes[k, 1] = v + 1
@@ -47,9 +49,9 @@ def label_points(
         starts[k + 1] += starts[k]
     points = np.empty((starts[-1], 3))
     fill = starts[:-1].copy()
-    for v in range(h):
-        for u in range(w):
-            k = which[v, u]
+    for v in range(r0, r1):
+        for u in range(c0, c1):
+            k = which[v - r0, u - c0]
             if k < 0:
                 continue
             points[fill[k], 0], points[fill[k], 1] = xyz[v, u, 0], xyz[v, u, 1]
@@ -80,13 +82,17 @@ def held_pieces(
     labels: U16, pieces: I32, row: I64, rows: int,
     n_pieces: int,
 ) -> I64:  # fmt: skip
-    """(rows, n_pieces) how many pixels of each piece each label holds, by the label's row
-    (`row[label]`): the bincount of row[labels]·n_pieces + pieces."""
+    """(rows, n_pieces) how many pixels of each piece > 0 each label holds, by the label's
+    row (`row[label]`), for the rows > 0: the bincount of row[labels]·n_pieces + pieces
+    there (0 in row 0 and column 0: counting the many pixels with neither one by one would
+    wait on each count before the next)."""
     out = np.zeros((rows, n_pieces), np.int64)
-    h, w = labels.shape
-    for v in range(h):
-        for u in range(w):
-            out[row[labels[v, u]], pieces[v, u]] += 1
+    count, at_v, at_u = pixels_of(pieces)
+    for i in range(count):
+        v, u = at_v[i], at_u[i]
+        r, k = row[labels[v, u]], pieces[v, u]
+        if r > 0 and k > 0:
+            out[r, k] += 1
     return out
 
 
@@ -99,22 +105,23 @@ def touching(labels: U16, pieces: I32, reach: int) -> tuple[I64, I64, I32]:
     which are few beside the tracks' (they stand out and no track took them): one pass to
     count the pairs, one to write them."""
     h, w = labels.shape
+    count, at_v, at_u = pixels_of(pieces)
     pairs = np.empty(0, np.int64)
     for write in (False, True):
         n = 0
-        for v in range(h):
-            for u in range(w):
-                r = pieces[v, u]
-                if r <= 0:
-                    continue
-                for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
-                    for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
-                        lab = labels[v2, u2]
-                        if lab == 0:
-                            continue
-                        if write:
-                            pairs[n] = np.int64(lab) << 32 | np.int64(r)
-                        n += 1
+        for k in range(count):
+            v, u = at_v[k], at_u[k]
+            r = pieces[v, u]
+            if r <= 0:
+                continue
+            for v2 in range(max(v - reach, 0), min(v + reach + 1, h)):
+                for u2 in range(max(u - reach, 0), min(u + reach + 1, w)):
+                    lab = labels[v2, u2]
+                    if lab == 0:
+                        continue
+                    if write:
+                        pairs[n] = np.int64(lab) << 32 | np.int64(r)
+                    n += 1
         if not write:
             pairs = np.empty(n, np.int64)
     pairs = np.unique(pairs)
@@ -148,9 +155,11 @@ def seams(
     joined = np.zeros(near.size, np.int64)
     for k in range(near.size):
         r = near[k]
+        size = 0  # counted in a register, not through the array
         for v in range(boxes[k, 0], boxes[k, 1]):
             for u in range(boxes[k, 2], boxes[k, 3]):
-                sizes[k] += pieces[v, u] == r
+                size += pieces[v, u] == r
+        sizes[k] = size
         r0, r1 = max(boxes[k, 0] - 1, 0), min(boxes[k, 1] + 1, h)
         c0, c1 = max(boxes[k, 2] - 1, 0), min(boxes[k, 3] + 1, w)
         for dv, du in ((0, 1), (1, 0)):
@@ -167,3 +176,44 @@ def seams(
                     meet[k] += 1
                     joined[k] += math.sqrt(x * x + y * y + z * z) <= step_m
     return sizes, meet, joined
+
+
+@kernel((I32_2D,))
+def piece_boxes(pieces: I32) -> I64:
+    """(n, 4) the box of each piece 1..n of `pieces` (n the largest number in it; first row,
+    row past the last, first column, column past the last, as `ndimage.find_objects` has
+    them; 0s for a number no pixel holds)."""
+    count, at_v, at_u = pixels_of(pieces)
+    n = 0
+    for i in range(count):
+        n = max(n, pieces[at_v[i], at_u[i]])
+    boxes = np.zeros((n, 4), np.int64)
+    seen = np.zeros(n, np.bool_)
+    for i in range(count):
+        v, u = at_v[i], at_u[i]
+        r = pieces[v, u] - 1
+        if r < 0:
+            continue
+        if not seen[r]:
+            seen[r] = True
+            boxes[r, 0], boxes[r, 2], boxes[r, 3] = v, u, u + 1
+        boxes[r, 1] = v + 1
+        boxes[r, 2] = min(boxes[r, 2], u)
+        boxes[r, 3] = max(boxes[r, 3], u + 1)
+    return boxes
+
+
+@kernel((I32_2D,))
+def piece_sizes(pieces: I32) -> I64:
+    """`np.bincount(pieces.ravel())` of pieces numbered from 0 up: each number's pixels (0
+    the rest: counting the many 0s one by one would wait on each count before the next)."""
+    h, w = pieces.shape
+    count, at_v, at_u = pixels_of(pieces)
+    n = 0
+    for i in range(count):
+        n = max(n, pieces[at_v[i], at_u[i]])
+    sizes = np.zeros(n + 1, np.int64)
+    for i in range(count):
+        sizes[pieces[at_v[i], at_u[i]]] += 1
+    sizes[0] = h * w - count
+    return sizes

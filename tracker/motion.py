@@ -52,6 +52,18 @@ def _transition(dt: float, accel_sigma: float) -> tuple[F64, F64]:
     return f, qm
 
 
+_EYE6 = np.eye(6)
+_EYE6.flags.writeable = False
+
+
+@functools.lru_cache(maxsize=8)
+def _isotropic(sigma: float) -> F64:
+    """`np.eye(3) * sigma**2`, made once for each of the few noise levels (read-only)."""
+    out = np.eye(3) * sigma**2
+    out.flags.writeable = False
+    return out
+
+
 class ConstantVelocity:
     """One object's 3D position and velocity."""
 
@@ -92,11 +104,11 @@ class ConstantVelocity:
         """Kalman update from a measurement of `part` of the state (position or velocity):
         with H that part's selection, H·x, H·P·Hᵀ, P·Hᵀ and K·H are those entries of x, P
         and K themselves, exactly, so they are taken rather than multiplied out."""
-        r = np.eye(3) * sigma**2 if isinstance(sigma, float) else sigma
+        r = _isotropic(sigma) if isinstance(sigma, float) else sigma
         innovation = z - self.x[part]
         s = self.P[part, part] + r
         k = np.ascontiguousarray(self.P[:, part]) @ np.linalg.inv(s)
         self.x = self.x + k @ innovation
         kh = np.zeros((6, 6))
         kh[:, part] = k
-        self.P = (np.eye(6) - kh) @ self.P
+        self.P = (_EYE6 - kh) @ self.P

@@ -17,7 +17,13 @@ from dataclasses import dataclass
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import background_kernels, components_kernels, pieces_kernels
+from tofcut.tracker import (
+    background_kernels,
+    components_kernels,
+    frame_kernels,
+    measure_kernels,
+    pieces_kernels,
+)
 from tofcut.tracker.background import (
     MEDIAN_SHARES,
     BackgroundModel,
@@ -69,7 +75,7 @@ class Pieces:
             bg.range, bg.sigma, frame.valid & bg.known & (labels == 0), seen, q
         )
         if self.params.rigid and belt is not None:
-            body[body] = on_belt_height(frame.xyz[body], belt)
+            body[body] = on_belt_height(frame_kernels.points_in(frame.xyz, body, 0, 0), belt)
         # a step of `connect_m` parts touching objects of different heights, or three
         # times the noise where that is more: a surface in loud noise is not broken into
         # specks by steps within the noise
@@ -96,13 +102,18 @@ class Pieces:
 
     def by_tops(self, xyz: F64, body: B, pieces: I32, noise: F64, belt: BeltGeometry | None) -> I32:
         """Rigid objects on a known belt: a piece holding two tops is two objects
-        (`tofcut.tracker.tops`); others as they are."""
-        if not self.params.rigid or belt is None or pieces.max() < 1:
+        (`tofcut.tracker.tops`); others as they are. A piece of fewer than twice
+        `min_pixels` holds no two tops of `min_pixels`: where none is larger, what faces up
+        is not weighed."""
+        p = self.params
+        if not p.rigid or belt is None:
+            return pieces
+        if not (measure_kernels.piece_sizes(pieces)[1:] >= 2 * p.min_pixels).any():
             return pieces
         up = facing_up(body, xyz, noise, belt)
         if up is None:
             return pieces
-        return split_by_tops(pieces, up, xyz, noise, belt, self.params.min_pixels)
+        return split_by_tops(pieces, up, xyz, noise, belt, p.min_pixels)
 
 
 def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:

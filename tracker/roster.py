@@ -21,7 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import measure_kernels
+from tofcut.tracker import frame_kernels, measure_kernels
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
@@ -30,7 +30,7 @@ from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
 from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
-from tofcut.tracker.tops import facing_up, one_object, sides_of
+from tofcut.tracker.tops import facing_up, level, seamless, sides_of
 
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
@@ -188,7 +188,7 @@ class Roster:
         corners, starts, held = measure_kernels.label_points(
             labels, frame.xyz, np.array([t.id for t in self.tracks], np.int64)
         )
-        piece_boxes: list[tuple[slice, slice] | None] | None = None
+        piece_boxes: I64 | None = None  # (pieces, 4), as `measure_kernels.piece_boxes`
         for k, t in enumerate(self.tracks):
             r0, r1, c0, c1 = corners[k].tolist()
             box = (slice(r0, r1), slice(c0, c1)) if starts[k + 1] > starts[k] else None
@@ -205,18 +205,19 @@ class Roster:
                     # its shape, and a person may have moved a limb where its prediction
                     # did not reach
                     if piece_boxes is None:
-                        piece_boxes = ndimage.find_objects(pieces)
+                        piece_boxes = measure_kernels.piece_boxes(pieces)
                     beside = self._continuing(frame, mask, box, pieces, touching[t.id], piece_boxes)
                     if beside.size:
-                        # all of it lies within its box and those of the pieces it takes
-                        win = _union([box] + [piece_boxes[r - 1] for r in beside.tolist()])
+                        # all of it lies within its box and those of the pieces it takes,
+                        # which are whole (none was taken before): its box is theirs
+                        win = _union(box, piece_boxes[beside - 1])
                         taken = np.zeros(len(piece_boxes) + 1, bool)  # by piece
                         taken[beside] = True
                         grown = taken[pieces[win]] | _placed(mask, box, win)
                         pieces[win][grown] = 0
                         labels[win][grown] = t.id
-                        box = _shifted(_box_of(grown), win)
-                        pts = frame.xyz[win][grown]
+                        box = win
+                        pts = frame_kernels.points_in(frame.xyz, grown, win[0].start, win[1].start)
                 t.see(pts, box, entering, belt)
             else:
                 if box is not None:
@@ -256,16 +257,20 @@ class Roster:
 
     def _join(self, frame: Frame, labels: U16, noise: F64, belt: BeltGeometry | None) -> list[int]:
         """Rigid objects on a known belt: two tracks whose masks meet with no step between
-        them and no two tops at different heights (`tops.one_object`), or where one is a side
-        face of the other (`tops.sides_of`), for `split_frames` frames running hold faces of
-        one object (its side seen first, a rim, the far end of a roll): the younger is handed
-        to the older. Changes `labels`; the ids ended."""
+        them and no two tops at different heights (`tops.one_object`'s two steps, `seamless`
+        and `level`), or where one is a side face of the other (`tops.sides_of`), for
+        `split_frames` frames running hold faces of one object (its side seen first, a rim,
+        the far end of a roll): the younger is handed to the older. Changes `labels`; the ids
+        ended."""
         p = self.params
         if not p.rigid or belt is None or len(self.tracks) < 2:
             self.joining = {}
             return []
-        up = facing_up(labels > 0, frame.xyz, noise, belt)
-        pairs = one_object(labels, frame.xyz, up, belt, p.joined_m)
+        pairs = seamless(labels, frame.xyz, p.joined_m)
+        if pairs:  # what faces up is weighed only where two tracks meet so
+            pairs = level(
+                pairs, labels, facing_up(labels > 0, frame.xyz, noise, belt), frame.xyz, belt
+            )
         pairs += [q for q in sides_of(labels, frame.xyz, noise, belt) if q not in pairs]
         self.joining = {pair: self.joining.get(pair, 0) + 1 for pair in pairs}
         ended: list[int] = []
@@ -295,8 +300,8 @@ class Roster:
         row = np.zeros(max(t.id for t in self.tracks) + 1, np.int64)
         for k, t in enumerate(self.tracks):
             row[t.id] = k + 1
+        # by track, the pixels of each piece (none of piece 0, which is no piece)
         held = measure_kernels.held_pieces(labels, pieces, row, len(self.tracks) + 1, n_pieces)[1:]
-        held[:, 0] = 0
         size = held.sum(axis=1)
         big = (held >= p.min_pixels) & (
             held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
@@ -347,18 +352,15 @@ class Roster:
         box: Box,
         pieces: I32,
         near: I32,
-        piece_boxes: list[Box | None],
+        piece_boxes: I64,
     ) -> I32:
         """Which pieces beside a track's `mask` (within its `box`) are more of the same
         object (pieces smaller than MIN_PIECE are noise): for rigid targets, those that go on
         from the mask's surface without a 3D step (`joined_m`); for targets that bend, all (a
-        limb). `piece_boxes` are the pieces' boxes (`ndimage.find_objects`)."""
-        corners = np.zeros((near.size, 4), np.int64)
-        for k, r in enumerate(near.tolist()):
-            rows, cols = piece_boxes[r - 1] or (slice(0, 0), slice(0, 0))
-            corners[k] = rows.start, rows.stop, cols.start, cols.stop
+        limb). `piece_boxes` are the pieces' boxes (`measure_kernels.piece_boxes`)."""
+        ids = near.astype(np.int64)
         sizes, meet, joined = measure_kernels.seams(
-            mask, box[0].start, box[1].start, pieces, near.astype(np.int64), corners, frame.xyz,
+            mask, box[0].start, box[1].start, pieces, ids, piece_boxes[ids - 1], frame.xyz,
             self.params.joined_m,
         )  # fmt: skip
         keep = []
@@ -378,7 +380,7 @@ class Roster:
         row (within `gate_m`), a track. A piece most of which a track could claim is a
         fringe of that track, not a new object."""
         p = self.params
-        sizes = np.bincount(pieces.ravel())
+        sizes = measure_kernels.piece_sizes(pieces)
         claim = (p.background_cap - p.object_cost) / p.beta
         found = []
         for r in np.nonzero(sizes >= p.min_pixels)[0]:
@@ -387,7 +389,7 @@ class Roster:
             piece = pieces == r
             if not _solid(piece, p.min_pixels):
                 continue
-            pts = frame.xyz[piece]
+            pts = frame_kernels.points_in(frame.xyz, piece, 0, 0)
             centroid = pts.mean(axis=0)
             if (
                 self.tracks
@@ -453,20 +455,14 @@ def _placed(mask: B, box: Box, win: Box) -> B:
     return out
 
 
-def _union(boxes: list[Box | None]) -> Box:
-    """The smallest box holding all of `boxes` (none of them None)."""
-    rows = [b[0] for b in boxes if b is not None]
-    cols = [b[1] for b in boxes if b is not None]
-    return (
-        slice(min(r.start for r in rows), max(r.stop for r in rows)),
-        slice(min(c.start for c in cols), max(c.stop for c in cols)),
-    )
-
-
-def _shifted(box: Box, win: Box) -> Box:
-    """A box found within the window `win`, in the frame's coordinates."""
-    r, c = win[0].start, win[1].start
-    return slice(box[0].start + r, box[0].stop + r), slice(box[1].start + c, box[1].stop + c)
+def _union(box: Box, corners: I64) -> Box:
+    """The smallest box holding `box` and the boxes of (n, 4) `corners` (first row, row past
+    the last, first column, column past the last)."""
+    rows, cols = box
+    r0, r1, c0, c1 = rows.start, rows.stop, cols.start, cols.stop
+    for a0, a1, b0, b1 in corners.tolist():
+        r0, r1, c0, c1 = min(r0, a0), max(r1, a1), min(c0, b0), max(c1, b1)
+    return slice(r0, r1), slice(c0, c1)
 
 
 def _box_of(mask: B) -> tuple[slice, slice]:

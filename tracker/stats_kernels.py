@@ -1,13 +1,14 @@
 """Robust statistics, compiled (see `tofcut.tracker.compiled`): numpy's median of an array
-(and whether it lies above a value), and 3×3 medians over an image.
+(and whether it lies above a value), 3×3 medians over an image, and for a track's points the
+two middle values of a percentile and the centring of their covariance.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import F64, I64, B
-from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, I64_2D, helper, kernel
+from tofcut._types import F64, B
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, helper, kernel
 
 
 @helper
@@ -78,6 +79,40 @@ def median(values: F64) -> float:
     for x in a[1 : n // 2 - offset]:
         lower = max(lower, x)
     return (lower + upper) / 2.0
+
+
+@kernel((F64_1D, 1))
+def order_pair(values: F64, k: int) -> tuple[bool, float, float]:
+    """The k-th and (k + 1)-th smallest of `values` (0 ≤ k, k + 1 < its size), as
+    `np.partition(values, [k, k + 1])[k : k + 2]` has them, where every value is finite;
+    False (and nans) where one is not."""
+    for x in values:
+        if not np.isfinite(x):
+            return False, np.nan, np.nan
+    a = values.copy()
+    lo = _select(a, 0, a.size - 1, k)
+    # quickselect leaves nothing smaller than the k-th after it
+    hi = a[k + 1]
+    for x in a[k + 2 :]:
+        hi = min(hi, x)
+    return True, lo, float(hi)
+
+
+@kernel((F64_2D,))
+def centred(points: F64) -> F64:
+    """(N, 3) C-ordered `points` less their mean, as `np.cov` centres them: numpy sums the
+    columns of `points.T` (an F-ordered array) point by point, in order, from 0."""
+    n = points.shape[0]
+    mean = np.zeros(3)
+    for m in range(n):
+        for a in range(3):
+            mean[a] += points[m, a]
+    mean /= n
+    out = np.empty((n, 3))
+    for m in range(n):
+        for a in range(3):
+            out[m, a] = points[m, a] - mean[a]
+    return out
 
 
 @kernel((F64_1D, 1.0))
@@ -188,24 +223,43 @@ def median3(values: F64, v: int, u: int, window: F64) -> float:
     )  # fmt: skip
 
 
-@kernel((F64_2D, B_2D, I64_2D))
-def median_within(values: F64, where: B, radius: I64) -> F64:
-    """`values` with each pixel of `where` whose `radius` r is 1 or more replaced by the
-    median of its (2r+1)×(2r+1) neighbours in `where` (itself included): one surface's noise
-    quietened without taking in what lies beyond its edge."""
+@helper
+def sorted_column(values: F64, v: int, u: int, column: F64) -> bool:
+    """Into `column`, the values of (v − 1, u), (v, u) and (v + 1, u) in `values` (rows at
+    the edges repeated) in ascending order, where none is nan (whether none is)."""
+    h = values.shape[0]
+    a, b, c = values[max(v - 1, 0), u], values[v, u], values[min(v + 1, h - 1), u]
+    if np.isnan(a) or np.isnan(b) or np.isnan(c):
+        return False
+    a, b = min(a, b), max(a, b)
+    b, c = min(b, c), max(b, c)
+    a, b = min(a, b), max(a, b)
+    column[0], column[1], column[2] = a, b, c
+    return True
+
+
+@helper
+def median3_from_columns(left: F64, middle: F64, right: F64) -> float:
+    """The median of nine values, none nan, given as three sorted columns of three (as
+    `sorted_column` leaves them): the median of the largest of the smallest, the median of
+    the middles and the smallest of the largest (Paeth's 3×3 median by columns)."""
+    low = max(left[0], middle[0], right[0])
+    high = min(left[2], middle[2], right[2])
+    a, b, c = left[1], middle[1], right[1]
+    mid = max(min(a, b), min(max(a, b), c))
+    return float(max(min(low, mid), min(max(low, mid), high)))
+
+
+@helper
+def median_in(values: F64, where: B, v: int, u: int, r: int, window: F64) -> float:
+    """The median of the values of `where`'s pixels in the (2r+1)×(2r+1) window round (v, u)
+    (one of them; `window` room for their values): one surface's noise quietened without
+    taking in what lies beyond its edge."""
     h, w = values.shape
-    out = values.copy()
-    window = np.empty((2 * max(int(radius.max()) if radius.size else 0, 1) + 1) ** 2)
-    for v in range(h):
-        for u in range(w):
-            r = radius[v, u]
-            if not (where[v, u] and r > 0):
-                continue
-            k = 0
-            for y in range(max(v - r, 0), min(v + r + 1, h)):
-                for x in range(max(u - r, 0), min(u + r + 1, w)):
-                    if where[y, x]:
-                        insert_sorted(window, k, values[y, x])
-                        k += 1
-            out[v, u] = window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2])
-    return out
+    k = 0
+    for y in range(max(v - r, 0), min(v + r + 1, h)):
+        for x in range(max(u - r, 0), min(u + r + 1, w)):
+            if where[y, x]:
+                insert_sorted(window, k, values[y, x])
+                k += 1
+    return float(window[k // 2] if k % 2 else 0.5 * (window[k // 2 - 1] + window[k // 2]))

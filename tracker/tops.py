@@ -47,13 +47,9 @@ one time in a hundred), no surface is told facing up."""
 def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     """The pixels of `body` on surfaces facing up from the belt (their slope over `BASELINE`
     pixels below `MAX_SLOPE`); None where the range noise makes the slope meaningless."""
-    where = body & np.isfinite(xyz[..., 2])
-    if not where.any():
-        return where
-    steep, *ratios = tops_kernels.steep_pixels(where, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    up, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
     if any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return None
-    up: B = where & ~steep
     return up
 
 
@@ -110,9 +106,16 @@ def one_object(
     labels: U16, xyz: F64, up: B | None, belt: BeltGeometry, joined_m: float
 ) -> list[tuple[int, int]]:
     """Pairs of labels (smaller first) whose masks meet along a seam where most neighbours
-    across it are within `joined_m` in 3D (one surface going on, no step) and which do not
-    hold tops at heights apart by `MIN_TOP_STEP_M` (`up`: the pixels facing up; None, as
-    where the noise hides the slope, tells no tops): two tracks holding faces of one object."""
+    across it are within `joined_m` in 3D (one surface going on, no step: `seamless`) and
+    which do not hold tops at heights apart by `MIN_TOP_STEP_M` (`level`; `up`: the pixels
+    facing up; None, as where the noise hides the slope, tells no tops): two tracks
+    holding faces of one object."""
+    return level(seamless(labels, xyz, joined_m), labels, up, xyz, belt)
+
+
+def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
+    """Pairs of labels (smaller first) whose masks meet along a seam of `MIN_SEAM` pairs or
+    more, most of them within `joined_m` in 3D, at a convex edge (`_convex`)."""
     pairs: dict[tuple[int, int], list[int]] = {}
     seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
     h, w = labels.shape
@@ -132,20 +135,25 @@ def one_object(
             counts[1] += int(g)
             if g:
                 seams.setdefault(key, []).append((v, u, v + dv, u + du))
+    return [
+        (x, y)
+        for (x, y), (meet_n, joined_n) in pairs.items()
+        if meet_n >= MIN_SEAM and joined_n * 2 >= meet_n and _convex(labels, xyz, seams[(x, y)])
+    ]  # not convex: a crease, two objects pressed together
+
+
+def level(
+    pairs: list[tuple[int, int]], labels: U16, up: B | None, xyz: F64, belt: BeltGeometry
+) -> list[tuple[int, int]]:
+    """Those of `pairs` of labels whose masks do not hold tops (`MIN_TOP` pixels of `up`)
+    at heights apart by `MIN_TOP_STEP_M`; all of them where `up` is None."""
+    if up is None:
+        return pairs
     out = []
-    for (x, y), (meet_n, joined_n) in pairs.items():
-        if meet_n < MIN_SEAM or joined_n * 2 < meet_n:
-            continue
-        if not _convex(labels, xyz, seams[(x, y)]):
-            continue  # a crease: two objects pressed together
-        if up is not None:
-            hx, hy = (
-                _top_height(labels == x, up, xyz, belt),
-                _top_height(labels == y, up, xyz, belt),
-            )
-            if hx is not None and hy is not None and abs(hx - hy) >= MIN_TOP_STEP_M:
-                continue
-        out.append((x, y))
+    for x, y in pairs:
+        hx, hy = _top_height(labels == x, up, xyz, belt), _top_height(labels == y, up, xyz, belt)
+        if hx is None or hy is None or not abs(hx - hy) >= MIN_TOP_STEP_M:
+            out.append((x, y))
     return out
 
 

@@ -9,65 +9,77 @@ import math
 import numpy as np
 
 from tofcut._types import F64, I32, I64, B
+from tofcut.tracker.box_kernels import box_of
 from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
 
 
 @kernel((B_2D, F64_3D, F64_2D, F64_1D, 1, 1.0))
-def steep_pixels(
-    where: B, xyz: F64, noise: F64, normal: F64, baseline: int, max_slope: float
+def facing_pixels(
+    body: B, xyz: F64, noise: F64, normal: F64, baseline: int, max_slope: float
 ) -> tuple[B, F64, F64]:
-    """`tofcut.tracker.tops.facing_up`'s arithmetic: of `where`'s points averaged over 3×3,
-    the pixels on a span of `baseline` pixels (along a row or a column) whose rise along
+    """`tofcut.tracker.tops.facing_up`'s arithmetic: the pixels of `body` with a finite depth
+    (`where`) less those on steep surfaces: of `where`'s points averaged over 3×3, the
+    pixels on a span of `baseline` pixels (along a row or a column) whose rise along
     `normal` is more than `max_slope` times their spacing across it; and, per direction,
-    each pair's slope noise (a 3×3 mean's noise twice, over the spacing). Only `where`'s
-    box is gone over: every pixel and pair it weighs lies in it."""
-    h, w = where.shape
-    r0, r1, c0, c1 = h, 0, w, 0
-    for v in range(h):
-        for u in range(w):
-            if where[v, u]:
-                r0, r1, c0, c1 = min(r0, v), max(r1, v + 1), min(c0, u), max(c1, u + 1)
-    steep = np.zeros((h, w), np.bool_)
+    each pair's slope noise (a 3×3 mean's noise twice, over the spacing). Only the box of
+    `body` is gone over: every pixel and pair it weighs lies in it."""
+    h, w = body.shape
+    r0, r1, c0, c1 = box_of(body)
+    up = np.zeros((h, w), np.bool_)
     if r1 <= r0:
-        return steep, np.empty(0), np.empty(0)
-    pts = np.empty((r1 - r0, c1 - c0, 3))  # the 3×3 means, at `where`'s pixels only
+        return up, np.empty(0), np.empty(0)
+    where = np.zeros((r1 - r0, c1 - c0), np.bool_)  # within the box
     for v in range(r0, r1):
         for u in range(c0, c1):
+            where[v - r0, u - c0] = body[v, u] and np.isfinite(xyz[v, u, 2])
+    # the 3×3 means, at `where`'s pixels only: from a padded copy of its points and 1s,
+    # 0 elsewhere (a sum begun at +0 is not changed by adding 0: the same sums, in the same
+    # order, without a test for each neighbour)
+    padded = np.zeros((r1 - r0 + 2, c1 - c0 + 2, 4))
+    for v in range(r1 - r0):
+        for u in range(c1 - c0):
+            if where[v, u]:
+                for a in range(3):
+                    padded[v + 1, u + 1, a] = xyz[v + r0, u + c0, a]
+                padded[v + 1, u + 1, 3] = 1.0
+    pts = np.empty((r1 - r0, c1 - c0, 3))
+    for v in range(r1 - r0):
+        for u in range(c1 - c0):
             if not where[v, u]:
                 continue
-            n = 0
-            sx = sy = sz = 0.0
-            for v2 in range(max(v - 1, 0), min(v + 2, h)):
-                for u2 in range(max(u - 1, 0), min(u + 2, w)):
-                    if where[v2, u2]:
-                        sx += xyz[v2, u2, 0]
-                        sy += xyz[v2, u2, 1]
-                        sz += xyz[v2, u2, 2]
-                        n += 1
-            pts[v - r0, u - c0, 0], pts[v - r0, u - c0, 1] = sx / n, sy / n
-            pts[v - r0, u - c0, 2] = sz / n
+            n = sx = sy = sz = 0.0
+            for v2 in range(v, v + 3):
+                for u2 in range(u, u + 3):
+                    sx += padded[v2, u2, 0]
+                    sy += padded[v2, u2, 1]
+                    sz += padded[v2, u2, 2]
+                    n += padded[v2, u2, 3]
+            pts[v, u, 0], pts[v, u, 1], pts[v, u, 2] = sx / n, sy / n, sz / n
+    steep = np.zeros((r1 - r0, c1 - c0), np.bool_)
     ratios = np.empty((2, (r1 - r0) * (c1 - c0)))
     counts = np.zeros(2, np.int64)
     share = math.sqrt(2.0) / 3.0
     for axis in range(2):
         dv, du = (baseline, 0) if axis == 0 else (0, baseline)
-        for v in range(r0, r1 - dv):
-            for u in range(c0, c1 - du):
+        for v in range(r1 - r0 - dv):
+            for u in range(c1 - c0 - du):
                 if not (where[v, u] and where[v + dv, u + du]):
                     continue
-                fv, fu, nv, nu = v + dv - r0, u + du - c0, v - r0, u - c0  # far end, near end
-                d0 = pts[fv, fu, 0] - pts[nv, nu, 0]
-                d1 = pts[fv, fu, 1] - pts[nv, nu, 1]
-                d2 = pts[fv, fu, 2] - pts[nv, nu, 2]
+                d0 = pts[v + dv, u + du, 0] - pts[v, u, 0]  # far end less near end
+                d1 = pts[v + dv, u + du, 1] - pts[v, u, 1]
+                d2 = pts[v + dv, u + du, 2] - pts[v, u, 2]
                 rise = d0 * normal[0] + d1 * normal[1] + d2 * normal[2]
                 a0, a1, a2 = d0 - rise * normal[0], d1 - rise * normal[1], d2 - rise * normal[2]
                 spacing = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
-                ratios[axis, counts[axis]] = noise[v, u] * share / max(spacing, 1e-6)
+                ratios[axis, counts[axis]] = noise[v + r0, u + c0] * share / max(spacing, 1e-6)
                 counts[axis] += 1
                 if abs(rise) > max_slope * spacing:
                     for k in range(baseline + 1):
                         steep[v + k * dv // baseline, u + k * du // baseline] = True
-    return steep, ratios[0, : counts[0]].copy(), ratios[1, : counts[1]].copy()
+    for v in range(r1 - r0):
+        for u in range(c1 - c0):
+            up[v + r0, u + c0] = where[v, u] and not steep[v, u]
+    return up, ratios[0, : counts[0]].copy(), ratios[1, : counts[1]].copy()
 
 
 @kernel((I32_2D, 1, I32_2D, F64_3D, F64_2D, F64_1D, F64_1D))
