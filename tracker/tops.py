@@ -207,20 +207,35 @@ def sides_of(labels: U16, xyz: F64, noise: F64, belt: BeltGeometry) -> list[tupl
     slant across a step that foreshortening makes. An object beside another, even one pressed
     against it, stands on its own footprint, and a lower one stops short of the other's top."""
     h, w = labels.shape
-    meets: dict[tuple[int, int], int] = {}
+    base = int(labels.max()) + 1
+    keys = []
     for k in (0, 1):  # right, down
         first, second = pair_slices((h, w), k)
         a, b = labels[first], labels[second]
         meet = (a != b) & (a > 0) & (b > 0)
-        if meet.any():
-            x, y = a[meet].astype(np.int64), b[meet].astype(np.int64)
-            for key in zip(np.minimum(x, y).tolist(), np.maximum(x, y).tolist(), strict=True):
-                meets[key] = meets.get(key, 0) + 1
-    return [
-        (x, y)
-        for (x, y), n in meets.items()
-        if n >= MIN_SEAM and _side(*_smaller_first(labels == x, labels == y), xyz, noise, belt)
-    ]
+        x, y = a[meet].astype(np.int64), b[meet].astype(np.int64)
+        keys.append(np.minimum(x, y) * base + np.maximum(x, y))
+    pairs, seam = np.unique(np.concatenate(keys), return_counts=True)
+    out = []
+    boxes = ndimage.find_objects(labels) if (seam >= MIN_SEAM).any() else []
+    for key in pairs[seam >= MIN_SEAM].tolist():
+        x, y = divmod(key, base)
+        rows, cols = _union(boxes[x - 1], boxes[y - 1])
+        win = labels[rows, cols]
+        side, of = _smaller_first(win == x, win == y)
+        if _side(side, of, xyz[rows, cols], noise[rows, cols], belt):
+            out.append((x, y))
+    return out
+
+
+def _union(a: tuple[slice, slice] | None, b: tuple[slice, slice] | None) -> tuple[slice, slice]:
+    """The smallest box holding two labels' boxes (both labels are present)."""
+    assert a is not None
+    assert b is not None
+    return (
+        slice(min(a[0].start, b[0].start), max(a[0].stop, b[0].stop)),
+        slice(min(a[1].start, b[1].start), max(a[1].stop, b[1].stop)),
+    )
 
 
 def _smaller_first(a: B, b: B) -> tuple[B, B]:
@@ -232,11 +247,15 @@ def _side(side: B, of: B, xyz: F64, noise: F64, belt: BeltGeometry) -> bool:
     """Whether the mask `side` is a side face of the object in `of` (`sides_of`)."""
     reach = max(0.02, float(np.median(noise[side])))
     ps, po = xyz[side], xyz[of]
+    feet, under = np.c_[belt.along(ps), belt.across(ps)], np.c_[belt.along(po), belt.across(po)]
+    # what lies within reach of the footprint lies within reach of its box: most pairs, side by
+    # side, are told here
+    near = (feet >= under.min(axis=0) - reach) & (feet <= under.max(axis=0) + reach)
+    if near.all(axis=1).mean() < SIDE_SHARE:
+        return False
     # a side rises to the other's top, where it meets it: a lower object beside stops short
     rise = np.percentile(belt.height(ps), 95) - np.percentile(belt.height(po), 90)
     if rise < -2.0 * reach:
         return False
-    gap, _ = cKDTree(np.c_[belt.along(po), belt.across(po)]).query(
-        np.c_[belt.along(ps), belt.across(ps)], distance_upper_bound=reach
-    )
+    gap, _ = cKDTree(under).query(feet, distance_upper_bound=reach)
     return bool(np.isfinite(gap).mean() >= SIDE_SHARE)
