@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import pytest
 
+from tofcut.driver.belt import BeltGeometry
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
@@ -60,22 +63,40 @@ def test_flush_boxes_of_one_height_stay_one_piece():
     assert pieces.max() == 1
 
 
-def test_two_faces_of_one_box_are_one_object_and_two_boxes_are_not():
-    source = _pair(0.12, 0.18, True)
+@dataclass(frozen=True)
+class _Held:
+    """Two boxes seen as tracks two ways: `boxes` one track each, `faces` the tall one's top
+    (1) and what of its sides shows (2)."""
+
+    xyz: np.ndarray
+    noise: np.ndarray
+    up: np.ndarray
+    belt: BeltGeometry
+    boxes: np.ndarray
+    faces: np.ndarray
+
+
+def _held(source: SceneSource) -> _Held:
     frame, truth = decode(source, scene_exposure(source, 0.0))
     belt = source.belt.geometry
     noise = range_noise(frame, 0.004)
     body = (truth.labels > 0) & frame.valid
     up = facing_up(body, frame.xyz, noise, belt)
-    # the two boxes, each a track: tops at different heights, never one object
-    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
-    assert one_object(boxes, frame.xyz, up, belt, 0.02) == []
-    # one box held as two tracks, its top and its sides: one object
+    assert up is not None
     tall = body & (truth.labels == 2)
     faces = np.zeros(body.shape, np.uint16)
     faces[tall & up] = 1
     faces[tall & ~up] = 2
-    assert one_object(faces, frame.xyz, up, belt, 0.02) == [(1, 2)]
+    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
+    return _Held(frame.xyz, noise, up, belt, boxes, faces)
+
+
+def test_two_faces_of_one_box_are_one_object_and_two_boxes_are_not():
+    h = _held(_pair(0.12, 0.18, True))
+    # the two boxes, each a track: tops at different heights, never one object
+    assert one_object(h.boxes, h.xyz, h.up, h.belt, 0.02) == []
+    # one box held as two tracks, its top and its sides: one object
+    assert one_object(h.faces, h.xyz, h.up, h.belt, 0.02) == [(1, 2)]
 
 
 def test_two_objects_pressed_together_meet_at_a_crease_even_without_tops():
@@ -88,18 +109,8 @@ def test_two_objects_pressed_together_meet_at_a_crease_even_without_tops():
 
 
 def test_a_side_face_lies_over_its_boxs_footprint_and_a_box_beside_does_not():
-    source = _pair(0.06, 0.16, False)
-    frame, truth = decode(source, scene_exposure(source, 0.0))
-    belt = source.belt.geometry
-    noise = range_noise(frame, 0.004)
-    body = (truth.labels > 0) & frame.valid
-    up = facing_up(body, frame.xyz, noise, belt)
+    h = _held(_pair(0.06, 0.16, False))
     # the tall box held as two tracks, its top and the smaller part, what of its sides shows
-    tall = body & (truth.labels == 2)
-    faces = np.zeros(body.shape, np.uint16)
-    faces[tall & up] = 1
-    faces[tall & ~up] = 2
-    assert sides_of(faces, frame.xyz, noise, belt) == [(1, 2)]
+    assert sides_of(h.faces, h.xyz, h.noise, h.belt) == [(1, 2)]
     # a low box pressed against it stands on its own footprint, below the tall one's top
-    boxes = np.where(body, truth.labels, 0).astype(np.uint16)
-    assert sides_of(boxes, frame.xyz, noise, belt) == []
+    assert sides_of(h.boxes, h.xyz, h.noise, h.belt) == []
