@@ -271,7 +271,7 @@ class Roster:
             pairs = level(
                 pairs, labels, facing_up(labels > 0, frame.xyz, noise, belt), frame.xyz, belt
             )
-        pairs += [q for q in sides_of(labels, frame.xyz, noise, belt) if q not in pairs]
+        pairs += sides_of(labels, frame.xyz, noise, belt, known=set(pairs))
         self.joining = {pair: self.joining.get(pair, 0) + 1 for pair in pairs}
         ended: list[int] = []
         for (older, younger), frames in sorted(self.joining.items()):

@@ -13,6 +13,8 @@ flush together: they stay one.
 
 from __future__ import annotations
 
+from collections.abc import Collection, Iterator
+
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
@@ -20,7 +22,7 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
-from tofcut.tracker.neighbours import OFFSETS, pair_slices
+from tofcut.tracker.neighbours import OFFSETS, Region, pair_slices
 
 BASELINE = 4
 """Pixels between the two points whose height and spacing give the slope: over one pixel the
@@ -118,13 +120,10 @@ def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
     more, most of them within `joined_m` in 3D, at a convex edge (`_convex`)."""
     pairs: dict[tuple[int, int], list[int]] = {}
     seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
-    h, w = labels.shape
-    for k in (0, 1):  # right, down
-        (dv, du), (first, second) = OFFSETS[k], pair_slices((h, w), k)
-        a, b = labels[first], labels[second]
-        meet = (a != b) & (a > 0) & (b > 0)
+    for k, first, second, meet in _meetings(labels):
         if not meet.any():
             continue
+        dv, du = OFFSETS[k]
         gap = np.linalg.norm(xyz[first][meet] - xyz[second][meet], axis=-1)
         rows, cols = np.nonzero(meet)
         for v, u, g in zip(rows.tolist(), cols.tolist(), (gap <= joined_m).tolist(), strict=True):
@@ -140,6 +139,16 @@ def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
         for (x, y), (meet_n, joined_n) in pairs.items()
         if meet_n >= MIN_SEAM and joined_n * 2 >= meet_n and _convex(labels, xyz, seams[(x, y)])
     ]  # not convex: a crease, two objects pressed together
+
+
+def _meetings(labels: U16) -> Iterator[tuple[int, Region, Region, B]]:
+    """For each of the two neighbour directions k (right, down; `OFFSETS[k]`): the slices of
+    each neighbour pair's first and second pixel, and where the two are held by two
+    different labels."""
+    for k in (0, 1):
+        first, second = pair_slices(labels.shape, k)
+        a, b = labels[first], labels[second]
+        yield k, first, second, (a != b) & (a > 0) & (b > 0)
 
 
 def level(
@@ -200,26 +209,27 @@ SIDE_SHARE = 0.8
 """Share of a track's points that must lie over another's footprint for it to be a side."""
 
 
-def sides_of(labels: U16, xyz: F64, noise: F64, belt: BeltGeometry) -> list[tuple[int, int]]:
-    """Pairs of labels (smaller first) whose masks meet, where the one with fewer pixels lies,
-    as seen along the belt's normal, over the other's footprint (`SIDE_SHARE` of its points
-    within the noise of it) and rises to the other's top: a side face of the other, seen at a
-    slant across a step that foreshortening makes. An object beside another, even one pressed
-    against it, stands on its own footprint, and a lower one stops short of the other's top."""
-    h, w = labels.shape
+def sides_of(
+    labels: U16, xyz: F64, noise: F64, belt: BeltGeometry, known: Collection[tuple[int, int]] = ()
+) -> list[tuple[int, int]]:
+    """Pairs of labels (smaller first), other than the `known` ones, whose masks meet, where
+    the one with fewer pixels lies, as seen along the belt's normal, over the other's
+    footprint (`SIDE_SHARE` of its points within the noise of it) and rises to the other's
+    top: a side face of the other, seen at a slant across a step that foreshortening makes.
+    An object beside another, even one pressed against it, stands on its own footprint, and
+    a lower one stops short of the other's top."""
     base = int(labels.max()) + 1
     keys = []
-    for k in (0, 1):  # right, down
-        first, second = pair_slices((h, w), k)
-        a, b = labels[first], labels[second]
-        meet = (a != b) & (a > 0) & (b > 0)
-        x, y = a[meet].astype(np.int64), b[meet].astype(np.int64)
+    for _, first, second, meet in _meetings(labels):
+        x, y = labels[first][meet].astype(np.int64), labels[second][meet].astype(np.int64)
         keys.append(np.minimum(x, y) * base + np.maximum(x, y))
     pairs, seam = np.unique(np.concatenate(keys), return_counts=True)
     out = []
     boxes = ndimage.find_objects(labels) if (seam >= MIN_SEAM).any() else []
     for key in pairs[seam >= MIN_SEAM].tolist():
         x, y = divmod(key, base)
+        if (x, y) in known:
+            continue
         rows, cols = _union(boxes[x - 1], boxes[y - 1])
         win = labels[rows, cols]
         side, of = _smaller_first(win == x, win == y)
