@@ -280,6 +280,26 @@ def test_a_masks_points_are_numpys_boolean_index(mask, data):
     )
 
 
+def test_rims_are_given_as_the_numpy_form_gives_them():
+    from tofcut.tracker import rims_kernels
+
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        h, w = rng.integers(1, 20, 2)
+        labels = (rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.4)).astype(np.uint16)
+        scenery = rng.uniform(1.8, 2.2, (h, w))
+        known = rng.random((h, w)) < 0.9
+        scenery[~known] = np.nan
+        # ranges on a coarse grid, so that ties between neighbours happen
+        seen = np.round(rng.uniform(1.5, 2.3, (h, w)), 1)
+        valid = rng.random((h, w)) < 0.9
+        got, rows, cols = rims_kernels.rims(labels, seen, valid, scenery, known)
+        np.testing.assert_array_equal(got, reference.rims(labels, seen, valid, scenery, known))
+        changed = np.nonzero(got != labels)
+        np.testing.assert_array_equal(rows, changed[0])
+        np.testing.assert_array_equal(cols, changed[1])
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 

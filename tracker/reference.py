@@ -376,3 +376,23 @@ def quietened(frame: Frame, body: B, noise: F64, step_m: float) -> Quietened:
     quiet = noise.copy()
     quiet[loud] *= MEDIAN_SHARES[radius[loud]]
     return Quietened(xyz, rng, quiet)
+
+
+def rims(labels: U16, seen: F64, valid: B, scenery: F64, known: B) -> U16:
+    """`tofcut.tracker.rims_kernels.rims`'s labels in plain numpy: the image shifted by each
+    neighbour in turn."""
+    h, w = labels.shape
+    out = labels.copy()
+    free = (labels == 0) & valid & known
+    best = np.full((h, w), np.inf)
+    for dv, du in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        there = (slice(max(dv, 0), h + min(dv, 0)), slice(max(du, 0), w + min(du, 0)))
+        here = (slice(max(-dv, 0), h + min(-dv, 0)), slice(max(-du, 0), w + min(-du, 0)))
+        k, r_k, r, bg = labels[there], seen[there], seen[here], scenery[here]
+        with np.errstate(invalid="ignore"):
+            near = free[here] & (k > 0) & valid[there] & (r_k < bg) & (bg - r > 0.5 * (bg - r_k))
+        gap = np.where(near, np.abs(r - r_k), np.inf)
+        take = gap < best[here]
+        best[here] = np.where(take, gap, best[here])
+        out[here] = np.where(take, k, out[here])
+    return out

@@ -14,10 +14,11 @@ objects on a belt: a track holding two touching surfaces (a step apart, or two t
 different heights: `tofcut.tracker.tops`) for a few frames has them dealt out again (two
 objects that came into view as one), two tracks that meet at a convex edge with no step are
 faces of one object and become one, and a track that stays put while the belt runs becomes
-scenery. Each pixel's range noise (`tofcut.tracker.noise`) scales what counts as near on
-far, dark targets. The belt is given (`Tracker(belt=...)`) or set when it becomes known
-(`tracker.belt = ...`, as the run's belt holder does with a belt found from the frames,
-`tofcut.tracker.belt_finder`).
+scenery. A mask's rim, pixels read between the object and the scenery behind it, is given
+to the track whose range it is nearer (`tofcut.tracker.rims`). Each pixel's range noise
+(`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
+(`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
+holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
+from tofcut.tracker.rims import add_rims
 from tofcut.tracker.roster import Roster, Seed
 from tofcut.tracker.tracks import TrackedFrame
 
@@ -137,6 +139,10 @@ class Tracker:
         if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
             self.background.hold_belt(frame, self.belt, noise)
         out = tuple(t.last for t in self.roster.tracks if t.last is not None)
+        if ready and out:
+            bg = self.background
+            rimmed = add_rims(labels, out, seen, frame.valid, bg.range, bg.known)
+            labels, out = rimmed.labels, rimmed.tracks
         return TrackedFrame(frame, labels, out, tuple(born), tuple(ended))
 
 

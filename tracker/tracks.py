@@ -18,7 +18,7 @@ class Track:
     id: int
     """Stable over the object's life, ≥ 1 (0 is the background in label images)."""
     centroid: F64
-    """(3,) mean of the object's points."""
+    """(3,) mean of the object's points (`points`)."""
     velocity: F64
     """(3,) m/s, from the track's filter."""
     box_min: F64
@@ -29,7 +29,8 @@ class Track:
     pixels: int
     """Pixels in the mask this frame (0 while the object is hidden and only predicted)."""
     points: npt.NDArray[np.float32]
-    """(N, 3) the object's point cloud this frame."""
+    """(N, 3) the object's point cloud this frame: its mask's points but those of the mask's
+    rim, read between the object and the scenery (`tofcut.tracker.rims`)."""
     hidden_frames: int = 0
     """Frames in a row the object was not seen (it is being predicted through occlusion)."""
 

@@ -1,0 +1,55 @@
+"""Mixed pixels at an object's rim: to the surface whose range they are nearer.
+
+A pixel that straddles an object's rim and the scenery behind it reads a range between the
+two (its returns are averaged over the pixel). It is near neither surface, so the cut gives
+it to neither track nor scenery with any confidence, and the background wins: every mask
+loses its rim. Which surface covers most of such a pixel shows in which of the two ranges
+its own lies nearer to, so a background pixel beside a track whose range lies past the
+midpoint toward the track's is the track's. Only the output masks take the rim: its points
+lie between the object and what is behind it, so the track's point cloud, centroid and shape
+leave them out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from tofcut._types import F64, I64, U16, B
+from tofcut.tracker import rims_kernels
+from tofcut.tracker.tracks import Track
+
+
+@dataclass(frozen=True, eq=False)
+class Rimmed:
+    """A frame's labels and tracks with the rims given to their tracks."""
+
+    labels: U16
+    tracks: tuple[Track, ...]
+
+
+def add_rims(
+    labels: U16, tracks: tuple[Track, ...], seen: F64, valid: B, scenery: F64, known: B
+) -> Rimmed:
+    """`labels` with the rims (`rims_kernels.rims`: `seen`, the frame's ranges as the scenery
+    `scenery` is compared with, where `known`), and `tracks` with their masks' pixel counts
+    and image boxes as the rims grow them."""
+    out, rows, cols = rims_kernels.rims(labels, seen, valid, scenery, known)
+    if not rows.size:
+        return Rimmed(labels, tracks)
+    ids = out[rows, cols]
+    return Rimmed(out, tuple(_grown(t, rows[ids == t.id], cols[ids == t.id]) for t in tracks))
+
+
+def _grown(track: Track, rows: I64, cols: I64) -> Track:
+    """`track` with the pixels (rows, cols) added to its mask."""
+    if not rows.size:
+        return track
+    u0, v0, u1, v1 = track.bbox
+    bbox = (
+        min(u0, int(cols.min())),
+        min(v0, int(rows.min())),
+        max(u1, int(cols.max()) + 1),
+        max(v1, int(rows.max()) + 1),
+    )
+    return dataclasses.replace(track, bbox=bbox, pixels=track.pixels + int(rows.size))
