@@ -280,13 +280,15 @@ def test_a_masks_points_are_numpys_boolean_index(mask, data):
     )
 
 
-def test_rims_are_given_as_the_numpy_form_gives_them():
+def test_rims_and_notches_are_given_as_the_numpy_form_gives_them():
     from tofcut.tracker import rims_kernels
 
     rng = np.random.default_rng(11)
     for _ in range(200):
         h, w = rng.integers(1, 20, 2)
-        labels = (rng.integers(0, 4, (h, w)) * (rng.random((h, w)) < 0.4)).astype(np.uint16)
+        # sparse, or dense enough for notches (five of eight neighbours held by one track)
+        tracks, held = (4, 0.4) if rng.random() < 0.5 else (2, 0.85)
+        labels = (rng.integers(1, tracks, (h, w)) * (rng.random((h, w)) < held)).astype(np.uint16)
         scenery = rng.uniform(1.8, 2.2, (h, w))
         known = rng.random((h, w)) < 0.9
         scenery[~known] = np.nan

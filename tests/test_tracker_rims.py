@@ -1,4 +1,5 @@
-"""An object's rim: mixed pixels, read between the object and the scenery, go to the nearer."""
+"""An object's outline given back to its mask: mixed pixels, read between the object and the
+scenery, go to the nearer, and notches to the track around them."""
 
 from __future__ import annotations
 
@@ -46,3 +47,21 @@ def test_a_pixel_between_two_tracks_goes_to_the_one_whose_range_it_is_nearer():
     out = add_rims(labels, tracks, seen, ones, np.full((1, 3), np.nan), np.zeros((1, 3), bool))
     np.testing.assert_array_equal(out.labels, labels)
     assert out.tracks == tracks
+
+
+def test_a_pixel_most_of_whose_neighbours_one_track_holds_is_a_notch_in_its_outline():
+    # a 4x4 box's mask with a hole (an invalid pixel) and a notch in its side (a pixel read
+    # on the scenery); the pixel beside its corner has only three of its neighbours in it
+    labels = np.zeros((6, 6), np.uint16)
+    labels[1:5, 1:5] = 1
+    labels[2, 2] = 0  # hole: all eight neighbours are the track's
+    labels[3, 4] = 0  # notch: five of eight
+    valid = np.ones((6, 6), bool)
+    valid[2, 2] = False
+    scenery = np.full((6, 6), 2.0)
+    seen = np.where(labels > 0, 1.8, 2.0)
+    out = add_rims(labels, (_track(1, labels),), seen, valid, scenery, np.ones((6, 6), bool))
+    want = labels.copy()
+    want[2, 2] = want[3, 4] = 1
+    np.testing.assert_array_equal(out.labels, want)
+    assert out.tracks[0].pixels == 16

@@ -395,4 +395,13 @@ def rims(labels: U16, seen: F64, valid: B, scenery: F64, known: B) -> U16:
         take = gap < best[here]
         best[here] = np.where(take, gap, best[here])
         out[here] = np.where(take, k, out[here])
-    return out
+    # the notches: five of the eight neighbours held by one track
+    padded = np.pad(out, 1)
+    around = np.stack([
+        padded[1 + dv : 1 + dv + h, 1 + du : 1 + du + w]
+        for dv in (-1, 0, 1) for du in (-1, 0, 1) if dv or du
+    ])  # fmt: skip
+    notched = out.copy()
+    for k in np.unique(out[out > 0]):
+        notched[(out == 0) & ((around == k).sum(axis=0) >= 5)] = k
+    return notched

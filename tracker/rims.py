@@ -1,12 +1,15 @@
-"""Mixed pixels at an object's rim: to the surface whose range they are nearer.
+"""An object's outline given back to its mask: mixed pixels to the surface they read nearer,
+and notches to the track around them.
 
 A pixel that straddles an object's rim and the scenery behind it reads a range between the
 two (its returns are averaged over the pixel). It is near neither surface, so the cut gives
 it to neither track nor scenery with any confidence, and the background wins: every mask
 loses its rim. Which surface covers most of such a pixel shows in which of the two ranges
 its own lies nearer to, so a background pixel beside a track whose range lies past the
-midpoint toward the track's is the track's. Only the output masks take the rim: its points
-lie between the object and what is behind it, so the track's point cloud, centroid and shape
+midpoint toward the track's is the track's. A background pixel then left with five of its
+eight neighbours in one track (a hole, or a notch in the outline where a pixel read wide of
+both surfaces) is that track's. Only the output masks take these pixels: their points lie
+between the object and what is behind it, so the track's point cloud, centroid and shape
 leave them out.
 """
 
@@ -22,7 +25,7 @@ from tofcut.tracker.tracks import Track
 
 @dataclass(frozen=True, eq=False)
 class Rimmed:
-    """A frame's labels and tracks with the rims given to their tracks."""
+    """A frame's labels and tracks with the outlines given back to their tracks."""
 
     labels: U16
     tracks: tuple[Track, ...]
@@ -31,9 +34,9 @@ class Rimmed:
 def add_rims(
     labels: U16, tracks: tuple[Track, ...], seen: F64, valid: B, scenery: F64, known: B
 ) -> Rimmed:
-    """`labels` with the rims (`rims_kernels.rims`: `seen`, the frame's ranges as the scenery
-    `scenery` is compared with, where `known`), and `tracks` with their masks' pixel counts
-    and image boxes as the rims grow them."""
+    """`labels` with the outlines given back (`rims_kernels.rims`: `seen`, the frame's ranges
+    as the scenery `scenery` is compared with, where `known`), and `tracks` with their masks'
+    pixel counts and image boxes as that grows them."""
     out, rows, cols = rims_kernels.rims(labels, seen, valid, scenery, known)
     if not rows.size:
         return Rimmed(labels, tracks)
