@@ -257,7 +257,8 @@ def _side(side: B, of: B, xyz: F64, noise: F64, belt: BeltGeometry) -> bool:
     """Whether the mask `side` is a side face of the object in `of` (`sides_of`)."""
     reach = max(0.02, float(np.median(noise[side])))
     ps, po = xyz[side], xyz[of]
-    feet, under = np.c_[belt.along(ps), belt.across(ps)], np.c_[belt.along(po), belt.across(po)]
+    feet = np.column_stack((belt.along(ps), belt.across(ps)))
+    under = np.column_stack((belt.along(po), belt.across(po)))
     # what lies within reach of the footprint lies within reach of its box: most pairs, side by
     # side, are told here
     near = (feet >= under.min(axis=0) - reach) & (feet <= under.max(axis=0) + reach)
