@@ -280,6 +280,28 @@ def test_a_masks_points_are_numpys_boolean_index(mask, data):
     )
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, max_side=20), elements=st.integers(0, 6)
+    )
+)
+def test_where_labels_meet_is_where_the_numpy_slices_find_them(labels):
+    from tofcut.tracker import tops_kernels
+    from tofcut.tracker.neighbours import OFFSETS, pair_slices
+
+    rows, cols, ks, keys = tops_kernels.meetings(labels, 7)
+    want = []
+    for k in (0, 1):
+        first, second = pair_slices(labels.shape, k)
+        a, b = labels[first].astype(np.int64), labels[second].astype(np.int64)
+        v, u = np.nonzero((a != b) & (a > 0) & (b > 0))
+        x, y = labels[v, u].astype(np.int64), labels[v + OFFSETS[k][0], u + OFFSETS[k][1]]
+        key = np.minimum(x, y) * 7 + np.maximum(x, y)
+        want.append(np.stack([v, u, np.full(v.size, k), key], axis=1))
+    np.testing.assert_array_equal(np.stack([rows, cols, ks, keys], axis=1), np.concatenate(want))
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 
