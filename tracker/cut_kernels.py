@@ -184,9 +184,10 @@ def cut_nodes(
             if free[v, u]:
                 where_v[a], where_u[a] = v, u
                 a += 1
-    unary = np.zeros((k + 1, n))
-    least = np.full((k, n), np.nan)
+    unary = np.empty((k + 1, n))
+    least = np.empty((k, n))
     ties = np.empty(n)
+    measured = np.empty(n, np.int64)  # each node's place in (rows, cols), −1 if none
     c = 0  # the next of (rows, cols), both in row-major order
     for a in range(n):
         v, u = where_v[a], where_u[a]
@@ -194,10 +195,12 @@ def cut_nodes(
         ties[a] = total[v, u]
         while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
             c += 1
-        if c < rows.size and rows[c] == v and cols[c] == u:
-            for t in range(k):
-                unary[t + 1, a] = cost[t, c]
-                least[t, a] = floor[t, c]
+        measured[a] = c if c < rows.size and rows[c] == v and cols[c] == u else -1
+    for t in range(k):  # row by row: each a run through memory
+        for a in range(n):
+            c = measured[a]
+            unary[t + 1, a] = cost[t, c] if c >= 0 else 0.0
+            least[t, a] = floor[t, c] if c >= 0 else np.nan
     return index, where_v, where_u, unary, least, ties
 
 
