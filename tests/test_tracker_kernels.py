@@ -302,6 +302,29 @@ def test_where_labels_meet_is_where_the_numpy_slices_find_them(labels):
     np.testing.assert_array_equal(np.stack([rows, cols, ks, keys], axis=1), np.concatenate(want))
 
 
+def test_the_unmeasured_costs_needed_are_those_the_numpy_form_finds():
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        k, n = rng.integers(1, 5), rng.integers(1, 30)
+        pairs = rng.permutation(k * n)[: rng.integers(1, k * n + 1)]
+        labels, cells = pairs // n + 1, pairs % n
+        unary = rng.choice(
+            [0.0, 0.5, 1.0, 2.0, np.inf, np.nan], (k + 1, n), p=[0.2] * 4 + [0.1] * 2
+        )
+        least = np.where(rng.random((k, n)) < 0.5, np.nan, rng.choice([0.5, 1.0, 2.5, 3.0], (k, n)))
+        ties = rng.choice([0.0, 0.5, 1.0], n)
+        unmeasured = ~np.isnan(least[labels - 1, cells])
+        held = ~unmeasured & np.isfinite(unary[labels, cells])
+        top = unary[0].copy()
+        with np.errstate(invalid="ignore"):  # a nan in the background's costs stays
+            np.maximum.at(top, cells[held], unary[labels[held], cells[held]])
+        want = unmeasured.copy()
+        at = cells[unmeasured]
+        want[unmeasured] = least[labels[unmeasured] - 1, at] <= top[at] + ties[at] + 1e-6
+        got = cut_kernels.unmeasured_needed(labels, cells, unary, least, ties, 1e-6)
+        np.testing.assert_array_equal(got, want)
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 

@@ -273,6 +273,31 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     return out
 
 
+@kernel((I64_1D, I64_1D, F64_2D, F64_2D, F64_1D, 1.0))
+def unmeasured_needed(
+    labels: I64, cells: I64, unary: F64, least: F64, ties: F64, margin: float
+) -> B:
+    """Of the (track label, node) pairs (`labels`, `cells`), those whose cost was not measured
+    (`least` holds its cost from the shape alone, not nan) and may still win the node: that
+    cost within the node's `ties` (and `margin`) of the most any label it may hold costs,
+    the background's or a measured, finite track cost (`unary`) of these pairs: numpy's
+    `maximum.at` of them over the background's, then `least <= top + ties + margin`."""
+    top = unary[0].copy()
+    for m in range(labels.size):
+        label, c = labels[m], cells[m]
+        x = unary[label, c]
+        if np.isnan(least[label - 1, c]) and np.isfinite(x):
+            a = top[c]
+            top[c] = a if (a >= x or a != a) else x  # numpy's maximum: a nan stays
+    need = np.zeros(labels.size, np.bool_)
+    for m in range(labels.size):
+        label, c = labels[m], cells[m]
+        floor = least[label - 1, c]
+        if not np.isnan(floor):
+            need[m] = floor <= top[c] + ties[c] + margin
+    return need
+
+
 @kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, F64_1D, 1.0, 1.0, 1.0))
 def background_cost(
     model: F64, sigma: F64, known: B, seen: F64, valid: B, noise_factor: float,
