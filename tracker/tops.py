@@ -120,6 +120,8 @@ def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
     more, most of them within `joined_m` in 3D, at a convex edge (`_convex`)."""
     base = int(labels.max()) + 1
     rows, cols, ks, keys = tops_kernels.meetings(labels, base)
+    if not keys.size:
+        return []
     ends = np.stack([rows, cols, rows + DV[ks], cols + DU[ks]], axis=1)
     joined = np.linalg.norm(xyz[rows, cols] - xyz[ends[:, 2], ends[:, 3]], axis=-1) <= joined_m
     pairs, first_at, inverse, meet_n = np.unique(
