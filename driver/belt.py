@@ -85,9 +85,12 @@ class BeltGeometry:
         object.__setattr__(self, "normal", n)
         object.__setattr__(self, "direction", d / d_len)
         object.__setattr__(self, "origin", np.array([0.0, 0.0, float(n @ self.point) / n[2]]))
+        object.__setattr__(self, "side", np.cross(self.normal, self.direction))
 
     origin: F64 = field(init=False, repr=False)
     """(3,) the top surface on the optical axis."""
+    side: F64 = field(init=False, repr=False)
+    """(3,) normal × direction: across the belt (made once, not on every `across`)."""
 
     @classmethod
     def from_plane(
@@ -103,8 +106,7 @@ class BeltGeometry:
 
     def across(self, points: F64) -> F64:
         """Position across the belt (m, along normal × direction) of (..., 3) points."""
-        side = np.cross(self.normal, self.direction)
-        return np.asarray((points - self.origin) @ side, dtype=np.float64)
+        return np.asarray((points - self.origin) @ self.side, dtype=np.float64)
 
     def height(self, points: F64) -> F64:
         """Height above the belt's top surface (m) of (..., 3) points."""
@@ -115,9 +117,8 @@ class BeltGeometry:
         do where the width is not known)."""
         if self.width_m is None:
             return np.ones(np.shape(points)[:-1], bool)
-        side = np.cross(self.normal, self.direction)
         with np.errstate(invalid="ignore"):
-            return np.abs((points - self.point) @ side) <= self.width_m / 2
+            return np.abs((points - self.point) @ self.side) <= self.width_m / 2
 
     def range_along(self, rays: F64) -> F64:
         """Distance along each unit ray (..., 3) to the belt's top surface; inf where the ray

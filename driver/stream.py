@@ -195,7 +195,8 @@ class FrameParser:
             if crc32(memoryview(buf)[HEADER_SIZE:end]) != header.payload_crc:
                 self._damaged(len(FRAME_MAGIC))
                 continue
-            wire = bytes(buf[:end])
+            with memoryview(buf) as view:  # one copy: a slice of `buf` would be another
+                wire = bytes(view[:end])
             del buf[:end]
             out.append(self._accept(header, wire, host_time_ns))
         return out

@@ -302,6 +302,51 @@ def test_rims_and_notches_are_given_as_the_numpy_form_gives_them():
         np.testing.assert_array_equal(cols, changed[1])
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, max_side=20), elements=st.integers(0, 6)
+    )
+)
+def test_where_labels_meet_is_where_the_numpy_slices_find_them(labels):
+    from tofcut.tracker import tops_kernels
+    from tofcut.tracker.neighbours import OFFSETS, pair_slices
+
+    rows, cols, ks, keys = tops_kernels.meetings(labels, 7)
+    want = []
+    for k in (0, 1):
+        first, second = pair_slices(labels.shape, k)
+        a, b = labels[first].astype(np.int64), labels[second].astype(np.int64)
+        v, u = np.nonzero((a != b) & (a > 0) & (b > 0))
+        x, y = labels[v, u].astype(np.int64), labels[v + OFFSETS[k][0], u + OFFSETS[k][1]]
+        key = np.minimum(x, y) * 7 + np.maximum(x, y)
+        want.append(np.stack([v, u, np.full(v.size, k), key], axis=1))
+    np.testing.assert_array_equal(np.stack([rows, cols, ks, keys], axis=1), np.concatenate(want))
+
+
+def test_the_unmeasured_costs_needed_are_those_the_numpy_form_finds():
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        k, n = rng.integers(1, 5), rng.integers(1, 30)
+        pairs = rng.permutation(k * n)[: rng.integers(1, k * n + 1)]
+        labels, cells = pairs // n + 1, pairs % n
+        unary = rng.choice(
+            [0.0, 0.5, 1.0, 2.0, np.inf, np.nan], (k + 1, n), p=[0.2] * 4 + [0.1] * 2
+        )
+        least = np.where(rng.random((k, n)) < 0.5, np.nan, rng.choice([0.5, 1.0, 2.5, 3.0], (k, n)))
+        ties = rng.choice([0.0, 0.5, 1.0], n)
+        unmeasured = ~np.isnan(least[labels - 1, cells])
+        held = ~unmeasured & np.isfinite(unary[labels, cells])
+        top = unary[0].copy()
+        with np.errstate(invalid="ignore"):  # a nan in the background's costs stays
+            np.maximum.at(top, cells[held], unary[labels[held], cells[held]])
+        want = unmeasured.copy()
+        at = cells[unmeasured]
+        want[unmeasured] = least[labels[unmeasured] - 1, at] <= top[at] + ties[at] + 1e-6
+        got = cut_kernels.unmeasured_needed(labels, cells, unary, least, ties, 1e-6)
+        np.testing.assert_array_equal(got, want)
+
+
 def test_touching_pieces_are_the_pieces_under_each_dilated_mask():
     from scipy import ndimage
 

@@ -333,15 +333,9 @@ class JointCut:
         labels = np.concatenate([np.repeat(c.labels[1:], c.nodes.size) for c in contested])
         cells = np.concatenate([np.tile(c.nodes, c.labels.size - 1) for c in contested])
         while True:
-            unmeasured = ~np.isnan(least[labels - 1, cells])
-            # the labels a node may hold: exact and finite (an inf one never is)
-            held = ~unmeasured & np.isfinite(unary[labels, cells])
-            top = unary[0].copy()
-            np.maximum.at(top, cells[held], unary[labels[held], cells[held]])
-            need = unmeasured.copy()
-            at = cells[unmeasured]
-            need[unmeasured] = (
-                least[labels[unmeasured] - 1, at] <= top[at] + nodes.ties[at] + CEILING_MARGIN
+            # the labels a node may hold are exact and finite (an inf one never is)
+            need = cut_kernels.unmeasured_needed(
+                labels, cells, unary, least, nodes.ties, CEILING_MARGIN
             )
             if not need.any():
                 return

@@ -184,9 +184,10 @@ def cut_nodes(
             if free[v, u]:
                 where_v[a], where_u[a] = v, u
                 a += 1
-    unary = np.zeros((k + 1, n))
-    least = np.full((k, n), np.nan)
+    unary = np.empty((k + 1, n))
+    least = np.empty((k, n))
     ties = np.empty(n)
+    measured = np.empty(n, np.int64)  # each node's place in (rows, cols), −1 if none
     c = 0  # the next of (rows, cols), both in row-major order
     for a in range(n):
         v, u = where_v[a], where_u[a]
@@ -194,10 +195,12 @@ def cut_nodes(
         ties[a] = total[v, u]
         while c < rows.size and (rows[c] < v or (rows[c] == v and cols[c] < u)):
             c += 1
-        if c < rows.size and rows[c] == v and cols[c] == u:
-            for t in range(k):
-                unary[t + 1, a] = cost[t, c]
-                least[t, a] = floor[t, c]
+        measured[a] = c if c < rows.size and rows[c] == v and cols[c] == u else -1
+    for t in range(k):  # row by row: each a run through memory
+        for a in range(n):
+            c = measured[a]
+            unary[t + 1, a] = cost[t, c] if c >= 0 else 0.0
+            least[t, a] = floor[t, c] if c >= 0 else np.nan
     return index, where_v, where_u, unary, least, ties
 
 
@@ -268,6 +271,31 @@ def add_fixed_ties_at(values: F64, index: I64, wt: F64, vs: I64, us: I64) -> F64
     for n in range(values.size):
         out[n] = _with_fixed_ties(values[n], index, wt, vs[n], us[n])
     return out
+
+
+@kernel((I64_1D, I64_1D, F64_2D, F64_2D, F64_1D, 1.0))
+def unmeasured_needed(
+    labels: I64, cells: I64, unary: F64, least: F64, ties: F64, margin: float
+) -> B:
+    """Of the (track label, node) pairs (`labels`, `cells`), those whose cost was not measured
+    (`least` holds its cost from the shape alone, not nan) and may still win the node: that
+    cost within the node's `ties` (and `margin`) of the most any label it may hold costs,
+    the background's or a measured, finite track cost (`unary`) of these pairs: numpy's
+    `maximum.at` of them over the background's, then `least <= top + ties + margin`."""
+    top = unary[0].copy()
+    for m in range(labels.size):
+        label, c = labels[m], cells[m]
+        x = unary[label, c]
+        if np.isnan(least[label - 1, c]) and np.isfinite(x):
+            a = top[c]
+            top[c] = a if (a >= x or a != a) else x  # numpy's maximum: a nan stays
+    need = np.zeros(labels.size, np.bool_)
+    for m in range(labels.size):
+        label, c = labels[m], cells[m]
+        floor = least[label - 1, c]
+        if not np.isnan(floor):
+            need[m] = floor <= top[c] + ties[c] + margin
+    return need
 
 
 @kernel((F64_2D, F64_2D, B_2D, F64_2D, B_2D, 1.0, 1.0, F64_1D, 1.0, 1.0, 1.0))

@@ -13,7 +13,7 @@ flush together: they stay one.
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator
+from collections.abc import Collection
 
 import numpy as np
 from scipy import ndimage
@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 from tofcut._types import F64, I32, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
-from tofcut.tracker.neighbours import OFFSETS, Region, pair_slices
+from tofcut.tracker.neighbours import DU, DV
 
 BASELINE = 4
 """Pixels between the two points whose height and spacing give the slope: over one pixel the
@@ -118,37 +118,25 @@ def one_object(
 def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
     """Pairs of labels (smaller first) whose masks meet along a seam of `MIN_SEAM` pairs or
     more, most of them within `joined_m` in 3D, at a convex edge (`_convex`)."""
-    pairs: dict[tuple[int, int], list[int]] = {}
-    seams: dict[tuple[int, int], list[tuple[int, int, int, int]]] = {}
-    for k, first, second, meet in _meetings(labels):
-        if not meet.any():
-            continue
-        dv, du = OFFSETS[k]
-        gap = np.linalg.norm(xyz[first][meet] - xyz[second][meet], axis=-1)
-        rows, cols = np.nonzero(meet)
-        for v, u, g in zip(rows.tolist(), cols.tolist(), (gap <= joined_m).tolist(), strict=True):
-            x, y = int(labels[v, u]), int(labels[v + dv, u + du])
-            key = (min(x, y), max(x, y))
-            counts = pairs.setdefault(key, [0, 0])
-            counts[0] += 1
-            counts[1] += int(g)
-            if g:
-                seams.setdefault(key, []).append((v, u, v + dv, u + du))
-    return [
-        (x, y)
-        for (x, y), (meet_n, joined_n) in pairs.items()
-        if meet_n >= MIN_SEAM and joined_n * 2 >= meet_n and _convex(labels, xyz, seams[(x, y)])
-    ]  # not convex: a crease, two objects pressed together
-
-
-def _meetings(labels: U16) -> Iterator[tuple[int, Region, Region, B]]:
-    """For each of the two neighbour directions k (right, down; `OFFSETS[k]`): the slices of
-    each neighbour pair's first and second pixel, and where the two are held by two
-    different labels."""
-    for k in (0, 1):
-        first, second = pair_slices(labels.shape, k)
-        a, b = labels[first], labels[second]
-        yield k, first, second, (a != b) & (a > 0) & (b > 0)
+    base = int(labels.max()) + 1
+    rows, cols, ks, keys = tops_kernels.meetings(labels, base)
+    if not keys.size:
+        return []
+    ends = np.stack([rows, cols, rows + DV[ks], cols + DU[ks]], axis=1)
+    joined = np.linalg.norm(xyz[rows, cols] - xyz[ends[:, 2], ends[:, 3]], axis=-1) <= joined_m
+    pairs, first_at, inverse, meet_n = np.unique(
+        keys, return_index=True, return_inverse=True, return_counts=True
+    )
+    joined_n = np.bincount(inverse[joined], minlength=pairs.size)
+    out = []
+    for r in np.argsort(first_at).tolist():  # in the order the scan first meets them
+        if (
+            meet_n[r] >= MIN_SEAM
+            and joined_n[r] * 2 >= meet_n[r]
+            and _convex(labels, xyz, ends[(inverse == r) & joined].tolist())
+        ):  # not convex: a crease, two objects pressed together
+            out.append(divmod(int(pairs[r]), base))
+    return out
 
 
 def level(
@@ -174,7 +162,7 @@ def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
     return float(np.median(belt.height(xyz[top])))
 
 
-def _convex(labels: U16, xyz: F64, seam: list[tuple[int, int, int, int]]) -> bool:
+def _convex(labels: U16, xyz: F64, seam: list[list[int]]) -> bool:
     """Whether two masks meet at a convex edge along `seam` (pairs of neighbouring pixels,
     one in each): the convexity criterion of locally convex connected patches (Stein et al.,
     in PCL), (n₁ − n₂)·(c₁ − c₂) ≥ 0 for the normals and centroids of each side's surface
@@ -219,11 +207,7 @@ def sides_of(
     An object beside another, even one pressed against it, stands on its own footprint, and
     a lower one stops short of the other's top."""
     base = int(labels.max()) + 1
-    keys = []
-    for _, first, second, meet in _meetings(labels):
-        x, y = labels[first][meet].astype(np.int64), labels[second][meet].astype(np.int64)
-        keys.append(np.minimum(x, y) * base + np.maximum(x, y))
-    pairs, seam = np.unique(np.concatenate(keys), return_counts=True)
+    pairs, seam = np.unique(tops_kernels.meetings(labels, base)[3], return_counts=True)
     out = []
     boxes = ndimage.find_objects(labels) if (seam >= MIN_SEAM).any() else []
     for key in pairs[seam >= MIN_SEAM].tolist():
@@ -257,7 +241,8 @@ def _side(side: B, of: B, xyz: F64, noise: F64, belt: BeltGeometry) -> bool:
     """Whether the mask `side` is a side face of the object in `of` (`sides_of`)."""
     reach = max(0.02, float(np.median(noise[side])))
     ps, po = xyz[side], xyz[of]
-    feet, under = np.c_[belt.along(ps), belt.across(ps)], np.c_[belt.along(po), belt.across(po)]
+    feet = np.column_stack((belt.along(ps), belt.across(ps)))
+    under = np.column_stack((belt.along(po), belt.across(po)))
     # what lies within reach of the footprint lies within reach of its box: most pairs, side by
     # side, are told here
     near = (feet >= under.min(axis=0) - reach) & (feet <= under.max(axis=0) + reach)

@@ -8,9 +8,9 @@ import math
 
 import numpy as np
 
-from tofcut._types import F64, I32, I64, B
-from tofcut.tracker.box_kernels import box_of
-from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, kernel
+from tofcut._types import F64, I32, I64, U16, B
+from tofcut.tracker.box_kernels import box_of, pixels_of
+from tofcut.tracker.compiled import B_2D, F64_1D, F64_2D, F64_3D, I32_2D, U16_2D, kernel
 
 
 @kernel((B_2D, F64_3D, F64_2D, F64_1D, 1, 1.0))
@@ -111,3 +111,31 @@ def top_stats(
             height[t] /= size[t]
             noise2[t] /= size[t]
     return size, height, noise2, home
+
+
+@kernel((U16_2D, 1))
+def meetings(labels: U16, base: int) -> tuple[I64, I64, I64, I64]:
+    """Where two labels meet: every pair of a pixel and its right neighbour, then every pair
+    of a pixel and the one below (`neighbours.OFFSETS` 0 and 1), held by two different
+    labels other than 0, each direction's in row-major order (`np.nonzero`'s) of its first
+    pixel: that pixel's row and column, the pair's direction, and its two labels as one
+    key, the smaller times `base` (more than any label) plus the larger. Only the labelled
+    pixels are gone over (`pixels_of`)."""
+    h, w = labels.shape
+    count, at_v, at_u = pixels_of(labels)
+    rows = np.empty(2 * count, np.int64)
+    cols = np.empty(2 * count, np.int64)
+    ks = np.empty(2 * count, np.int64)
+    keys = np.empty(2 * count, np.int64)
+    m = 0
+    for k in range(2):
+        dv, du = (0, 1) if k == 0 else (1, 0)
+        for i in range(count):
+            v, u = at_v[i], at_u[i]
+            if v + dv < h and u + du < w:
+                a, b = np.int64(labels[v, u]), np.int64(labels[v + dv, u + du])
+                if a != b and b > 0:
+                    rows[m], cols[m], ks[m] = v, u, k
+                    keys[m] = min(a, b) * base + max(a, b)
+                    m += 1
+    return rows[:m], cols[:m], ks[:m], keys[:m]
