@@ -295,11 +295,24 @@ def test_rims_and_notches_are_given_as_the_numpy_form_gives_them():
         # ranges on a coarse grid, so that ties between neighbours happen
         seen = np.round(rng.uniform(1.5, 2.3, (h, w)), 1)
         valid = rng.random((h, w)) < 0.9
-        got, rows, cols = rims_kernels.rims(labels, seen, valid, scenery, known)
+        ids = np.arange(1, tracks, dtype=np.int64)
+        boxes = np.zeros((ids.size, 4), np.int64)
+        pixels = np.zeros(ids.size, np.int64)
+        for k, i in enumerate(ids):
+            rows, cols = np.nonzero(labels == i)
+            if rows.size:
+                boxes[k] = cols.min(), rows.min(), cols.max() + 1, rows.max() + 1
+                pixels[k] = rows.size
+        got, grown, counts = rims_kernels.rims(
+            labels, seen, valid, scenery, known, ids, boxes, pixels
+        )
         np.testing.assert_array_equal(got, reference.rims(labels, seen, valid, scenery, known))
-        changed = np.nonzero(got != labels)
-        np.testing.assert_array_equal(rows, changed[0])
-        np.testing.assert_array_equal(cols, changed[1])
+        for k, i in enumerate(ids):  # each track's box and pixels, as its mask now has them
+            rows, cols = np.nonzero(got == i)
+            assert counts[k] == rows.size
+            if rows.size:
+                box = [cols.min(), rows.min(), cols.max() + 1, rows.max() + 1]
+                np.testing.assert_array_equal(grown[k], box)
 
 
 @settings(max_examples=200, deadline=None)

@@ -18,6 +18,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import numpy as np
+
 from tofcut._types import F64, I64, U16, B
 from tofcut.tracker import rims_kernels
 from tofcut.tracker.tracks import Track
@@ -37,22 +39,17 @@ def add_rims(
     """`labels` with the outlines given back (`rims_kernels.rims`: `seen`, the frame's ranges
     as the scenery `scenery` is compared with, where `known`), and `tracks` with their masks'
     pixel counts and image boxes as that grows them."""
-    out, rows, cols = rims_kernels.rims(labels, seen, valid, scenery, known)
-    if not rows.size:
-        return Rimmed(labels, tracks)
-    ids = out[rows, cols]
-    return Rimmed(out, tuple(_grown(t, rows[ids == t.id], cols[ids == t.id]) for t in tracks))
+    ids = np.array([t.id for t in tracks], np.int64)
+    boxes = np.array([t.bbox for t in tracks], np.int64).reshape(-1, 4)
+    pixels = np.array([t.pixels for t in tracks], np.int64)
+    out, boxes, counts = rims_kernels.rims(labels, seen, valid, scenery, known, ids, boxes, pixels)
+    grown = (_grown(t, boxes[k], int(counts[k])) for k, t in enumerate(tracks))
+    return Rimmed(out, tuple(grown))
 
 
-def _grown(track: Track, rows: I64, cols: I64) -> Track:
-    """`track` with the pixels (rows, cols) added to its mask."""
-    if not rows.size:
+def _grown(track: Track, box: I64, pixels: int) -> Track:
+    """`track` with its mask's image box and pixel count as the outline grew them."""
+    if pixels == track.pixels:
         return track
-    u0, v0, u1, v1 = track.bbox
-    bbox = (
-        min(u0, int(cols.min())),
-        min(v0, int(rows.min())),
-        max(u1, int(cols.max()) + 1),
-        max(v1, int(rows.max()) + 1),
-    )
-    return dataclasses.replace(track, bbox=bbox, pixels=track.pixels + int(rows.size))
+    u0, v0, u1, v1 = box.tolist()
+    return dataclasses.replace(track, bbox=(u0, v0, u1, v1), pixels=pixels)
