@@ -42,8 +42,10 @@ def add_rims(
     ids = np.array([t.id for t in tracks], np.int64)
     boxes = np.array([t.bbox for t in tracks], np.int64).reshape(-1, 4)
     pixels = np.array([t.pixels for t in tracks], np.int64)
-    out, boxes, counts = rims_kernels.rims(labels, seen, valid, scenery, known, ids, boxes, pixels)
-    grown = (_grown(t, boxes[k], int(counts[k])) for k, t in enumerate(tracks))
+    out, grown_boxes, counts = rims_kernels.rims(
+        labels, seen, valid, scenery, known, ids, boxes, pixels
+    )
+    grown = (_grown(t, grown_boxes[k], int(counts[k])) for k, t in enumerate(tracks))
     return Rimmed(out, tuple(grown))
 
 

@@ -15,7 +15,8 @@ different heights: `tofcut.tracker.tops`) for a few frames has them dealt out ag
 objects that came into view as one), two tracks that meet at a convex edge with no step are
 faces of one object and become one, and a track that stays put while the belt runs becomes
 scenery. A mask's rim, pixels read between the object and the scenery behind it, is given
-to the track whose range it is nearer (`tofcut.tracker.rims`). Each pixel's range noise
+to the track whose range it is nearer, and a notch in it to the track round it
+(`tofcut.tracker.rims`). Each pixel's range noise
 (`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
 (`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
 holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).

@@ -29,8 +29,8 @@ class Track:
     pixels: int
     """Pixels in the mask this frame (0 while the object is hidden and only predicted)."""
     points: npt.NDArray[np.float32]
-    """(N, 3) the object's point cloud this frame: its mask's points but those of the mask's
-    rim, read between the object and the scenery (`tofcut.tracker.rims`)."""
+    """(N, 3) the object's point cloud this frame: its mask's points but those of the outline
+    given back to it (`tofcut.tracker.rims`), read between the object and the scenery."""
     hidden_frames: int = 0
     """Frames in a row the object was not seen (it is being predicted through occlusion)."""
 
