@@ -30,7 +30,7 @@ from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
 from tofcut.tracker.neighbours import EIGHT
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
-from tofcut.tracker.tops import facing_up, level, seamless, sides_of
+from tofcut.tracker.tops import facing_up, level, meetings, seamless, sides_of
 
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
@@ -266,12 +266,13 @@ class Roster:
         if not p.rigid or belt is None or len(self.tracks) < 2:
             self.joining = {}
             return []
-        pairs = seamless(labels, frame.xyz, p.joined_m)
+        met = meetings(labels)
+        pairs = seamless(labels, frame.xyz, p.joined_m, met)
         if pairs:  # what faces up is weighed only where two tracks meet so
             pairs = level(
                 pairs, labels, facing_up(labels > 0, frame.xyz, noise, belt), frame.xyz, belt
             )
-        pairs += sides_of(labels, frame.xyz, noise, belt, known=set(pairs))
+        pairs += sides_of(labels, frame.xyz, noise, belt, known=set(pairs), met=met)
         self.joining = {pair: self.joining.get(pair, 0) + 1 for pair in pairs}
         ended: list[int] = []
         for (older, younger), frames in sorted(self.joining.items()):

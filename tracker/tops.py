@@ -14,12 +14,13 @@ flush together: they stay one.
 from __future__ import annotations
 
 from collections.abc import Collection
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from tofcut._types import F64, I32, U16, B
+from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.tracker import components_kernels, stats_kernels, tops_kernels
 from tofcut.tracker.neighbours import DU, DV
@@ -115,11 +116,33 @@ def one_object(
     return level(seamless(labels, xyz, joined_m), labels, up, xyz, belt)
 
 
-def seamless(labels: U16, xyz: F64, joined_m: float) -> list[tuple[int, int]]:
-    """Pairs of labels (smaller first) whose masks meet along a seam of `MIN_SEAM` pairs or
-    more, most of them within `joined_m` in 3D, at a convex edge (`_convex`)."""
+@dataclass(frozen=True, eq=False)
+class Meetings:
+    """Where two labels of a label image meet (`tops_kernels.meetings`): the first pixel of
+    each neighbouring pair held by two labels, the pair's direction, and its two labels as
+    one key, the smaller times `base` plus the larger."""
+
+    base: int
+    rows: I64
+    cols: I64
+    ks: I64
+    keys: I64
+
+
+def meetings(labels: U16) -> Meetings:
+    """Where the labels of `labels` meet, found once for `seamless` and `sides_of`."""
     base = int(labels.max()) + 1
-    rows, cols, ks, keys = tops_kernels.meetings(labels, base)
+    return Meetings(base, *tops_kernels.meetings(labels, base))
+
+
+def seamless(
+    labels: U16, xyz: F64, joined_m: float, met: Meetings | None = None
+) -> list[tuple[int, int]]:
+    """Pairs of labels (smaller first) whose masks meet along a seam of `MIN_SEAM` pairs or
+    more, most of them within `joined_m` in 3D, at a convex edge (`_convex`); `met`: where
+    they meet, if already found."""
+    met = met or meetings(labels)
+    base, rows, cols, ks, keys = met.base, met.rows, met.cols, met.ks, met.keys
     if not keys.size:
         return []
     ends = np.stack([rows, cols, rows + DV[ks], cols + DU[ks]], axis=1)
@@ -198,16 +221,23 @@ SIDE_SHARE = 0.8
 
 
 def sides_of(
-    labels: U16, xyz: F64, noise: F64, belt: BeltGeometry, known: Collection[tuple[int, int]] = ()
+    labels: U16,
+    xyz: F64,
+    noise: F64,
+    belt: BeltGeometry,
+    known: Collection[tuple[int, int]] = (),
+    met: Meetings | None = None,
 ) -> list[tuple[int, int]]:
     """Pairs of labels (smaller first), other than the `known` ones, whose masks meet, where
     the one with fewer pixels lies, as seen along the belt's normal, over the other's
     footprint (`SIDE_SHARE` of its points within the noise of it) and rises to the other's
     top: a side face of the other, seen at a slant across a step that foreshortening makes.
     An object beside another, even one pressed against it, stands on its own footprint, and
-    a lower one stops short of the other's top."""
-    base = int(labels.max()) + 1
-    pairs, seam = np.unique(tops_kernels.meetings(labels, base)[3], return_counts=True)
+    a lower one stops short of the other's top. `met`: where the labels meet, if already
+    found."""
+    met = met or meetings(labels)
+    base = met.base
+    pairs, seam = np.unique(met.keys, return_counts=True)
     out = []
     boxes = ndimage.find_objects(labels) if (seam >= MIN_SEAM).any() else []
     for key in pairs[seam >= MIN_SEAM].tolist():
