@@ -1,11 +1,15 @@
-"""When a track holds two objects (`tofcut.tracker.roster._two_objects`): synthetic masks."""
+"""The roster's rules on synthetic masks and clouds: when a track holds two objects
+(`tofcut.tracker.roster._two_objects`), lies beside the belt or flat on it."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tofcut.tracker.roster import _two_objects
+from tofcut.driver.belt import BeltGeometry
+from tofcut.tracker.params import TrackerParams
+from tofcut.tracker.roster import Roster, _beside, _two_objects
+from tofcut.tracker.tracker import Tracker
 
 STEP_M = 0.03
 
@@ -49,3 +53,70 @@ def test_a_surface_mostly_held_by_another_track_still_counts_where_this_one_hold
 def test_parts_of_a_mask_are_two_objects_only_with_the_scenery_seen_between(gap_range_m, two):
     pieces, mask, rng = _scene(gap_range_m)
     assert _two_objects(pieces, np.array([1, 2]), mask, rng, STEP_M) is two
+
+
+# --- what lies beside the belt, and what lies flat on it ------------------------------------
+
+BELT_RANGE_M = 2.0
+
+
+def _belt(width_m: float | None) -> BeltGeometry:
+    """A belt 2 m in front of the camera, facing it, running along x; across it is -y."""
+    return BeltGeometry(
+        np.array([0.0, 0.0, BELT_RANGE_M]), np.array([1.0, 0.0, 0.0]),
+        np.array([0.0, 0.0, -1.0]), width_m,
+    )  # fmt: skip
+
+
+def _block(y0: float, y1: float, height_m: float, n: int = 400) -> np.ndarray:
+    """Points of a block's top and sides: x in [-0.1, 0.1], y in [y0, y1], from the belt up
+    to `height_m` (a flat patch of belt when 0)."""
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(-0.1, 0.1, n), rng.uniform(y0, y1, n)
+    h = np.where(np.arange(n) % 2 == 0, height_m, rng.uniform(0.0, height_m, n))
+    return np.column_stack([x, y, BELT_RANGE_M - h])
+
+
+def _roster_with(*clouds: np.ndarray) -> tuple[Roster, np.ndarray]:
+    """A roster holding one track per cloud (ids 1, 2, ...), each seen this frame at its
+    cloud's points and on a row of the labels."""
+    roster = Tracker(TrackerParams()).roster
+    labels = np.zeros((len(clouds), 4), np.uint16)
+    for k, cloud in enumerate(clouds):
+        tid = roster._start(cloud, np.eye(3) * 0.01)
+        track = roster.tracks[-1]
+        track.last = track.report(cloud, (slice(k, k + 1), slice(0, 4)))
+        labels[k] = tid
+    return roster, labels
+
+
+def test_a_track_beside_a_belt_of_known_width_is_ended_and_those_on_it_kept():
+    over = _block(-0.1, 0.1, 0.1)
+    edge = _block(0.15, 0.35, 0.1)  # half of it over the belt's edge at 0.25
+    beside = _block(0.4, 0.6, 0.1)  # past the edge: a guide, the floor, a far wall
+    roster, labels = _roster_with(over, edge, beside)
+    assert roster.off_belt(labels, _belt(None)) == []  # no width: nothing is beside it
+    assert roster.off_belt(labels, _belt(0.5)) == [3]
+    assert [t.id for t in roster.tracks] == [1, 2]
+    assert not labels[2].any()
+    assert labels[:2].all()
+    assert _beside(beside, _belt(0.5))
+    assert not _beside(edge, _belt(0.5))
+
+
+def test_tracks_flat_on_the_belt_are_ended_and_low_objects_kept():
+    belt = _belt(0.5)
+    flat = _block(-0.2, 0.2, 0.0) + np.random.default_rng(4).normal(0.0, 0.005, (400, 3))
+    low = _block(-0.1, 0.1, 0.04)  # the lowest box the family draws
+    roster, labels = _roster_with(flat, low)
+    assert roster.flat_on(labels, belt, min_height_m=0.02) == [1]
+    assert [t.id for t in roster.tracks] == [2]
+    assert not labels[0].any()
+    assert labels[1].all()
+
+
+def test_a_track_not_seen_this_frame_is_left_to_coast():
+    roster, labels = _roster_with(_block(0.4, 0.6, 0.0))  # beside the belt, and flat
+    roster.tracks[0].last = None
+    assert roster.off_belt(labels, _belt(0.5)) == []
+    assert roster.flat_on(labels, _belt(0.5), min_height_m=0.02) == []

@@ -520,6 +520,7 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
     share the family's normal), how much its border drops away and how wide it runs across
     the view. The layers are the peaks of the heights along the family's normal (of the
     sharper half of the pixels: far, noisy ones blur the peaks)."""
+    seen = ok
     ok = ok & (sigma <= quiet_enough(sigma[ok], params))
     pts, sig = xyz[ok], sigma[ok]
     if len(pts) < 3:
@@ -552,7 +553,11 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
             heights = np.where(ok, fit.height(xyz), np.nan)
             mask = ok & (np.abs(heights) < band)
         share = drop_share(heights, reach, ok, mask)
-        layers.append(Layer(fit, fit.inliers, share, span_width(xyz, mask, fit.normal)))
+        # how far it runs across the view, over every pixel it shows (the far end of a belt
+        # is read too loud to help find the plane, but it is there)
+        with np.errstate(invalid="ignore"):
+            shown = seen & (np.abs(fit.height(xyz)) < band)
+        layers.append(Layer(fit, fit.inliers, share, span_width(xyz, shown, fit.normal)))
     return layers
 
 

@@ -7,11 +7,13 @@ becomes a new track. Rigid objects on a belt: a track holding two touching surfa
 apart, or two tops at different heights: `tofcut.tracker.tops`) for a few frames has them
 dealt out again (two objects that came into view as one), two tracks that meet at a convex
 edge with no step are faces of one object and become one, and a track that stays put while
-the belt runs becomes scenery. Targets the user gives are started from their seeds.
+the belt runs becomes scenery; what lies beside a belt of known width, or flat on a belt laid
+anew, is no object. Targets the user gives are started from their seeds.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -231,6 +233,31 @@ class Roster:
             born += self._detect(frame, pieces, labels, noise, belt)
         return Measured(tuple(born), tuple(ended))
 
+    def off_belt(self, labels: U16, belt: BeltGeometry | None) -> list[int]:
+        """Rigid objects on a belt of known width: end the tracks seen this frame beside the
+        belt (`_beside`; begun before its width was known); their ids. Changes `labels`."""
+        if not self.params.rigid or belt is None or belt.width_m is None:
+            return []
+        return self._end(labels, lambda pts: _beside(pts, belt))
+
+    def flat_on(self, labels: U16, belt: BeltGeometry, min_height_m: float) -> list[int]:
+        """End the tracks seen this frame lying flat on the belt (the median height of their
+        points under half of `min_height_m`): the belt itself, taken for an object while
+        another layer (the floor under a raised belt) was taken for the belt; their ids.
+        Changes `labels`."""
+        return self._end(labels, lambda pts: float(np.median(belt.height(pts))) < min_height_m / 2)
+
+    def _end(self, labels: U16, wrong: Callable[[F64], bool]) -> list[int]:
+        """End the tracks whose points this frame (`LiveTrack.last`) are `wrong`: no object
+        on the belt; their ids. Changes `labels`."""
+        ended = []
+        for t in list(self.tracks):
+            if t.last is not None and t.last.pixels and wrong(t.last.points.astype(np.float64)):
+                labels[labels == t.id] = 0
+                self.tracks.remove(t)
+                ended.append(t.id)
+        return ended
+
     def to_scenery(
         self,
         frame: Frame,
@@ -379,7 +406,7 @@ class Roster:
     ) -> list[int]:
         """Pieces no track can claim become candidates; one seen `confirm_frames` times in a
         row (within `gate_m`), a track. A piece most of which a track could claim is a
-        fringe of that track, not a new object."""
+        fringe of that track, not a new object; one beside the belt (`_beside`), none."""
         p = self.params
         sizes = measure_kernels.piece_sizes(pieces)
         claim = (p.background_cap - p.object_cost) / p.beta
@@ -392,6 +419,8 @@ class Roster:
                 continue
             pts = frame_kernels.points_in(frame.xyz, piece, 0, 0)
             centroid = pts.mean(axis=0)
+            if p.rigid and belt is not None and _beside(pts, belt):
+                continue
             if (
                 self.tracks
                 and np.median(self.cut.distances(self.tracks, pts, noise[piece]).min(axis=0))
@@ -423,6 +452,17 @@ class Roster:
                 next_candidates.append(match)
         self.candidates = next_candidates
         return born
+
+
+OVER_SHARE = 0.25
+"""Share of an object's points over the belt, at the least: what the belt carries stands on it,
+and one at its edge seen from the side still shows half its points over it."""
+
+
+def _beside(points: F64, belt: BeltGeometry) -> bool:
+    """Whether points lie beside the belt, not on it: fewer than `OVER_SHARE` of them over
+    its width (never where the width is not known)."""
+    return belt.width_m is not None and float(belt.over_belt(points).mean()) < OVER_SHARE
 
 
 def _solid(piece: B, min_pixels: int) -> bool:

@@ -121,7 +121,7 @@ class Tracker:
         )
         measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt, seen)
         born += measured.born
-        ended = list(measured.ended)
+        ended = list(measured.ended) + self.roster.off_belt(labels, self.belt)
         if ready and prior is not None:
             still = self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
             if still:  # the scenery took them in: its ranges changed
@@ -137,6 +137,7 @@ class Tracker:
             # belt goes under it, once the scenery and the belt are both known
             self.background.clear_belt(frame, self.belt)
             self._belt_laid = True
+            ended += self.roster.flat_on(labels, self.belt, p.background.min_height_m)
         if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
             self.background.hold_belt(frame, self.belt, noise)
         out = tuple(t.last for t in self.roster.tracks if t.last is not None)
