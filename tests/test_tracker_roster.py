@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -115,8 +117,15 @@ def test_tracks_flat_on_the_belt_are_ended_and_low_objects_kept():
     assert labels[1].all()
 
 
-def test_a_track_not_seen_this_frame_is_left_to_coast():
+@pytest.mark.parametrize("unseen", ["never reported", "coasting"])
+def test_a_track_not_seen_this_frame_is_left_to_coast(unseen):
     roster, labels = _roster_with(_block(0.4, 0.6, 0.0))  # beside the belt, and flat
-    roster.tracks[0].last = None
+    track = roster.tracks[0]
+    # coasting: what `LiveTrack.coast` reports, its predicted place and no points
+    track.last = (
+        None
+        if unseen == "never reported"
+        else dataclasses.replace(track.last, pixels=0, points=np.zeros((0, 3), np.float32))
+    )
     assert roster.off_belt(labels, _belt(0.5)) == []
     assert roster.flat_on(labels, _belt(0.5), min_height_m=0.02) == []

@@ -549,14 +549,14 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
             continue
         rms = float(np.sqrt(np.mean((pts[held] @ normal - off) ** 2)))
         fit = PlaneFit(normal, off, rms, int(np.count_nonzero(held)), len(pts))
+        height = fit.height(xyz)
         with np.errstate(invalid="ignore"):
-            heights = np.where(ok, fit.height(xyz), np.nan)
-            mask = ok & (np.abs(heights) < band)
-        share = drop_share(heights, reach, ok, mask)
+            on = np.abs(height) < band
+        heights = np.where(ok, height, np.nan)
+        share = drop_share(heights, reach, ok, ok & on)
         # how far it runs across the view, over every pixel it shows (the far end of a belt
         # is read too loud to help find the plane, but it is there)
-        with np.errstate(invalid="ignore"):
-            shown = seen & (np.abs(fit.height(xyz)) < band)
+        shown = seen & on
         layers.append(Layer(fit, fit.inliers, share, span_width(xyz, shown, fit.normal)))
     return layers
 
