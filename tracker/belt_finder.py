@@ -137,9 +137,14 @@ class FinderParams:
     edges_every: int = 5
     """Every this many frames goes into the width (the edges do not move: a few suffice)."""
     max_spread_deg: float = 5.0
-    """Tops that disagree more than this on the direction leave the travel unknown..."""
+    """A top agrees with the travel when its direction is within this of it..."""
+    agree_speed: float = 0.1
+    """...and its speed within this share of it."""
+    min_agreeing: float = 0.5
+    """The travel is unknown until the tops that agree with it hold more than this share of
+    the weight (a top's weight: how well its line pins its velocity)..."""
     max_speed_se: float = 0.01
-    """...as does a velocity whose standard error is more than this share of the speed."""
+    """...and while its velocity's standard error is more than this share of the speed."""
     sweep: SweepParams = field(default_factory=SweepParams)
     """How the belt is told from the floor and from box tops by what moves over it."""
 
@@ -159,7 +164,8 @@ class FinderParams:
             self.max_speed_mps, self.min_speed_mps, self.max_gap_s, self.min_follow_s,
             self.max_track_rms_m, self.size_change, self.area_gate, self.settle_s,
             self.min_longest_s, self.done_s, self.min_done_s, self.max_s, self.patience_s,
-            self.give_up_s, self.min_shift_m, self.max_spread_deg, self.max_speed_se,
+            self.give_up_s, self.min_shift_m, self.max_spread_deg, self.agree_speed,
+            self.min_agreeing, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
             raise SegmentError("lengths, speeds, times and shares must be positive numbers")
@@ -232,18 +238,21 @@ class TravelFit:
     """(2,) unit, in the plane's basis."""
     speed_mps: float
     direction_spread_deg: float
-    """How much the tops disagree on the direction (`stats.robust_sigma`: a standard
+    """How much the tops that agree scatter in direction (`stats.robust_sigma`: a standard
     deviation where they scatter normally)."""
     speed_spread_mps: float
     """The same for their speeds along the direction."""
     segments: int
+    """Tops that agree with the travel."""
     seconds: float
-    """Followed-top time that voted (summed)."""
+    """Followed-top time of the tops that agree (summed)."""
     longest_s: float
-    """The longest time one top was followed."""
+    """The longest time one of them was followed."""
     speed_se_mps: float
-    """Standard error of the velocity from the tops' scatter about their lines (combined by
+    """Standard error of the velocity from their scatter about their lines (combined by
     inverse variance): what noise alone leaves uncertain."""
+    agreeing: float
+    """The share of the moving tops' weight that the tops agreeing hold."""
 
 
 @dataclass(frozen=True)
@@ -722,9 +731,7 @@ def find_tops(
     # taller by more than its noise explains, or over the median of its 3 × 3 heights: a
     # pixel read high in noise is not something taller
     above = level[around[ring]] + TALLER_M
-    higher = (h[ring] > np.maximum(above, level[around[ring]] + 3.0 * sigma[ring])) | (
-        ndimage.median_filter(h, 3)[ring] > above
-    )
+    higher = ndimage.median_filter(h, 3)[ring] > above
     rings = np.bincount(around[ring], minlength=n)
     enough = np.maximum(3, 0.05 * rings)
     cut |= np.bincount(around[ring][higher], minlength=n) > enough
@@ -835,11 +842,21 @@ def match_tops(
     return out
 
 
+TOP_BIAS = 0.02
+"""How far a followed top's velocity may be off, as a share of its speed, however well its
+line fits: its outline, and so its centroid, changes a little as the view of it changes."""
+
+
 def travel_from(segments: list[Segment], params: FinderParams) -> TravelFit | None:
     """Direction and speed from followed tops: medians of their directions and speeds over the
     tops that moved, each weighted by how well its line pins its velocity (the inverse square
     of the slope's standard error, frames × time² / scatter²: a top followed twice as long
-    counts eight times as much); None when none moved."""
+    counts eight times as much), taken again over the tops that agree with the first (within
+    `max_spread_deg` and `agree_speed`); None when none moved.
+
+    Agreement, not the scatter of all, is what the travel is judged by: a top followed over a
+    few frames while a moving edge misreads its outline votes wide of the rest, and many such
+    votes hid the tops followed cleanly for a second."""
     moving = [
         s for s in segments
         if s.seconds >= params.min_follow_s and s.rms_m <= params.max_track_rms_m
@@ -852,27 +869,45 @@ def travel_from(segments: list[Segment], params: FinderParams) -> TravelFit | No
     # scatter rms has variance 12 rms² / (n T²)
     w = np.array([s.frames * s.seconds**2 / (12 * max(s.rms_m, 0.001) ** 2) for s in moving])
     speeds = np.linalg.norm(vel, axis=1)
+    # no top pins the travel better than its own way of being seen allows (its outline
+    # changes with the view as it goes): the medians weigh each at most so
+    vote = 1.0 / (1.0 / w + (TOP_BIAS * speeds) ** 2)
     mean = (vel / speeds[:, None] * w[:, None]).sum(axis=0)
     if float(np.linalg.norm(mean)) < 1e-9:
         return None
     base = math.atan2(float(mean[1]), float(mean[0]))
     angles = np.angle(np.exp(1j * (np.arctan2(vel[:, 1], vel[:, 0]) - base)))
-    turn = weighted_median(angles, w)
+    turn, speed = _medians(vel, angles, base, vote, np.ones(len(moving), np.bool_))
+    along = vel @ np.array([math.cos(base + turn), math.sin(base + turn)])
+    agree = (np.abs(angles - turn) <= math.radians(params.max_spread_deg)) & (
+        np.abs(along - speed) <= params.agree_speed * abs(speed)
+    )
+    if not agree.any():
+        agree[int(np.argmax(w))] = True
+    turn, speed = _medians(vel, angles, base, vote, agree)
     direction = np.array([math.cos(base + turn), math.sin(base + turn)])
     along = vel @ direction
-    speed = weighted_median(along, w)
+    kept = [s for s, a in zip(moving, agree, strict=True) if a]
     return TravelFit(
         direction,
         speed,
-        # how much the tops disagree, each counting once (a weighted spread would be that of
-        # the one top that holds most of the weight: nothing)
-        math.degrees(robust_sigma(angles - turn)),
-        robust_sigma(along - speed),
-        len(moving),
-        float(sum(s.seconds for s in moving)),
-        max(s.seconds for s in moving),
-        1.0 / math.sqrt(float(w.sum())),
+        # how much the agreeing tops scatter, each counting once (a weighted spread would be
+        # that of the one top that holds most of the weight: nothing)
+        math.degrees(robust_sigma(angles[agree] - turn)),
+        robust_sigma(along[agree] - speed),
+        len(kept),
+        float(sum(s.seconds for s in kept)),
+        max(s.seconds for s in kept),
+        1.0 / math.sqrt(float(w[agree].sum())),
+        float(w[agree].sum() / w.sum()),
     )
+
+
+def _medians(vel: F64, angles: F64, base: float, w: F64, use: B) -> tuple[float, float]:
+    """The weighted median turn from `base` and speed along it of the velocities in `use`."""
+    turn = weighted_median(angles[use], w[use])
+    along = vel[use] @ np.array([math.cos(base + turn), math.sin(base + turn)])
+    return turn, weighted_median(along, w[use])
 
 
 def moved(segments: list[Segment], params: FinderParams) -> bool:
@@ -1243,7 +1278,7 @@ class BeltFinder:
             travel is not None and travel.seconds >= p.settle_s
             and travel.longest_s >= p.min_longest_s
             and travel.speed_se_mps <= p.max_speed_se * abs(travel.speed_mps)
-            and travel.direction_spread_deg <= p.max_spread_deg
+            and travel.agreeing > p.min_agreeing
         )  # fmt: skip
 
     def _close(self, f: _Follow) -> None:
