@@ -135,7 +135,10 @@ class FinderParams:
     min_shift_m: float = 0.02
     """A top that went this far has moved (less is the noise of a still one)."""
     edges_every: int = 5
-    """Every this many frames goes into the width (the edges do not move: a few suffice)."""
+    """Every this many frames goes into the width (the edges do not move: a few suffice)..."""
+    width_every_s: float = 1.0
+    """...and once the travel is final, the width is fitted every this many seconds until it is
+    found, or `give_up_s`."""
     max_spread_deg: float = 5.0
     """A top agrees with the travel when its direction is within this of it..."""
     agree_speed: float = 0.1
@@ -164,7 +167,8 @@ class FinderParams:
             self.max_speed_mps, self.min_speed_mps, self.max_gap_s, self.min_follow_s,
             self.max_track_rms_m, self.size_change, self.area_gate, self.settle_s,
             self.min_longest_s, self.done_s, self.min_done_s, self.max_s, self.patience_s,
-            self.give_up_s, self.min_shift_m, self.max_spread_deg, self.agree_speed,
+            self.give_up_s, self.min_shift_m, self.width_every_s, self.max_spread_deg,
+            self.agree_speed,
             self.min_agreeing, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
@@ -1126,6 +1130,7 @@ class BeltFinder:
         self._moved = False
         self._edges: _EdgeSums | None = None
         self._width: WidthFit | None = None
+        self._width_tried: float | None = None
         self._sweep: SweepWindow | None = None
         self._swept: SweptLayer | None = None
         self.moves = 0
@@ -1162,8 +1167,7 @@ class BeltFinder:
             self._edges.frames += 1
         self._sweep_frame(frame, ok, sigma, t)
         if self._plane_final and self._status != "looking" and self._settled(t):
-            self._width = self._fit_width()
-            self.done = True
+            self.done = self._width_settled(t)
         self._estimate = self._make_estimate()
         return self._estimate
 
@@ -1292,6 +1296,17 @@ class BeltFinder:
         self._follows = []
 
     # --- the layer things move over -----------------------------------------------------
+
+    def _width_settled(self, t: float) -> bool:
+        """Fit the width (again every `width_every_s`) once the travel is final: whether it is
+        settled, found or looked for until `give_up_s` (the edges take more frames than the
+        travel: a belt whose travel was plain in a second hid its edges under its objects)."""
+        assert self._t_first is not None
+        p = self.params
+        if self._width_tried is None or t - self._width_tried >= p.width_every_s:
+            self._width_tried = t
+            self._width = self._fit_width()
+        return self._width is not None or self._travel is None or t - self._t_first >= p.give_up_s
 
     def _settled(self, t: float) -> bool:
         """Whether the belt's layer is settled: seen swept, or nothing moved to sweep it, or
