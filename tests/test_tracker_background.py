@@ -59,6 +59,20 @@ def test_what_was_learned_since_a_belt_was_laid_is_kept_when_it_is_taken_off():
     assert (model.range.flat[seen] == 1.234).all()
 
 
+def test_what_was_taken_in_as_scenery_is_not_covered_by_a_belt_laid_again():
+    model, frame, noise, belt = _learned()
+    model.clear_belt(frame, belt)
+    laid = np.isfinite(model._laid_range) & frame.valid
+    assert laid.sum() > 100  # what stood on the belt while the scenery was learned
+    # a track that stayed put there while the belt ran is handed to the scenery (a rail
+    # taken for an object while the belt's width was not known)...
+    model.absorb(frame, laid, noise)
+    taken = model.range.copy()
+    # ...and stays scenery when the belt is laid again (refined as the finder goes on)
+    model.clear_belt(frame, dataclasses.replace(belt, width_m=None))
+    np.testing.assert_array_equal(model.range[laid], taken[laid])
+
+
 def test_over_a_running_belt_the_scenery_is_held_to_what_it_was_when_the_belt_was_laid():
     model, frame, noise, belt = _learned()
     with np.errstate(invalid="ignore", divide="ignore"):

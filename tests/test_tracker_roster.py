@@ -129,3 +129,36 @@ def test_a_track_not_seen_this_frame_is_left_to_coast(unseen):
     )
     assert roster.off_belt(labels, _belt(0.5)) == []
     assert roster.flat_on(labels, _belt(0.5), min_height_m=0.02) == []
+
+
+def _seen_at(track, point, measured: bool = True) -> None:
+    """The track measured (or not) at `point` this frame."""
+    track.filter.x[:3] = point
+    track.measured = measured
+
+
+def test_what_stays_put_is_judged_on_the_frames_it_is_seen_and_forgives_a_moment_away():
+    from tofcut.tracker.live_track import LiveTrack
+
+    p = TrackerParams()
+    dt, home = 0.02, np.array([0.2, 0.2, 1.0])
+    steps = round(p.still_s / dt) + 2
+    # a rail's ghost: seen in place, one frame in four not measured (its view changed size),
+    # and for 0.2 s dragged aside by a box passing beside it: still part of the machine
+    rail = LiveTrack(1, home[None, :], np.eye(3), p)
+    verdicts = []
+    for k in range(round(steps * 1.5)):
+        away = 40 <= k < 50
+        _seen_at(rail, home + (0.3 if away else 0.0), measured=k % 4 != 3)
+        verdicts.append(rail.stays_put(dt, running=True))
+    assert any(verdicts)
+    # a box carried past at 0.1 m/s, the slowest belt on which staying put is judged: never
+    box = LiveTrack(2, home[None, :], np.eye(3), p)
+    for k in range(steps * 3):
+        _seen_at(box, home + np.array([0.1 * dt * k, 0.0, 0.0]))
+        assert not box.stays_put(dt, running=True)
+    # and nothing stays put while the belt stands
+    still = LiveTrack(3, home[None, :], np.eye(3), p)
+    for _ in range(steps * 2):
+        _seen_at(still, home)
+        assert not still.stays_put(dt, running=False)

@@ -143,6 +143,8 @@ class BackgroundModel:
         self._cleared_range: F64 = np.full(shape, np.nan)
         """The scenery as the last `clear_belt` left it, and what `absorb` took in since: what
         `hold_belt` holds it to."""
+        self._absorbed: B = np.zeros(shape, bool)
+        """Pixels `absorb` took in: scenery by decision, which no belt laid later covers."""
         self._wrapped: B = np.zeros(shape, bool)
         """Scenery read near though it is far (its phase wrapped round: `clear_belt`)..."""
         self._wrapped_belt: BeltGeometry | None = None
@@ -188,7 +190,8 @@ class BackgroundModel:
         learned: nothing is seen through a belt, and such a pixel would stand out once the
         belt shows there). A belt laid before is taken off first, where nothing was learned
         over it since: the belt found from the data can move to another layer (the floor
-        beside a raised belt was taken for it), and what it laid was never seen."""
+        beside a raised belt was taken for it), and what it laid was never seen. What `absorb`
+        took in (a track that stayed put while the belt ran: a rail) is never covered again."""
         back = self._laid & (self.range == self._laid_range)
         self.range[back] = self._unlaid_range[back]
         self.sigma[back] = self._unlaid_sigma[back]
@@ -204,7 +207,7 @@ class BackgroundModel:
             behind = on & (off > np.maximum(3.0 * self.sigma, self.params.min_height_m))
             behind &= off < BEHIND_BELT_M
             level = on & (np.abs(off) < LEVEL_M)
-        fix = _objects_only(above, points, belt, level) | behind
+        fix = (_objects_only(above, points, belt, level) | behind) & ~self._absorbed
         self._laid = fix
         self._unlaid_range[fix] = self.range[fix]
         self._unlaid_sigma[fix] = self.sigma[fix]
@@ -251,6 +254,7 @@ class BackgroundModel:
         self.range[take] = frame.range[take]
         self.sigma[take] = noise[take]
         self._cleared_range[take] = frame.range[take]  # scenery by decision: `hold_belt` keeps it
+        self._absorbed |= take
         self.known |= take
         self._farther[take] = 0
         self._farther_min[take] = np.inf

@@ -59,6 +59,10 @@ class LiveTrack:
         self.id = id
         self.params = params
         self.filter = ConstantVelocity(points.mean(axis=0), params.motion, velocity)
+        self.start = self.filter.position
+        """Where it was first seen..."""
+        self.age_s = 0.0
+        """...and how long ago."""
         self.shape = shape
         """3×3 covariance of the object's points: its size and orientation."""
         self.surface: SortedSurface | None = None
@@ -75,6 +79,8 @@ class LiveTrack:
         self.anchor: F64 | None = None
         """Where the track has been seen staying, and for how long (`still_s`)."""
         self.still_s = 0.0
+        self.away_s = 0.0
+        """How long it has been seen away from `anchor` since it was last seen there."""
         self.seed: F64 | None = None
         """A seeded target's seed point, from its centroid."""
         self.last: Track | None = None
@@ -95,6 +101,7 @@ class LiveTrack:
         measured last frame keeps the belt's pace, one seen goes by its own motion (not
         everything in view rides the belt)."""
         before = self.filter.position
+        self.age_s += dt
         self.filter.predict(dt)
         if prior is not None and not self.measured:
             self.filter.follow_belt(prior)
@@ -155,14 +162,34 @@ class LiveTrack:
         more now) while the belt runs (`running`): part of the machine, not something on it."""
         p = self.params
         pos = self.filter.position
-        if not (running and self.measured):
-            self.anchor, self.still_s = None, 0.0
+        if not running:
+            self.anchor, self.still_s, self.away_s = None, 0.0, 0.0
             return False
-        if self.anchor is None or np.linalg.norm(pos - self.anchor) > p.gate_m:
-            self.anchor, self.still_s = pos, 0.0
+        if not self.measured:  # not seen whole this frame: it neither stayed nor moved
             return False
+        if self.anchor is None:
+            self.anchor, self.still_s, self.away_s = pos, 0.0, 0.0
+            return False
+        if np.linalg.norm(pos - self.anchor) > p.gate_m:
+            # seen away from where it stayed: a moment (something passing took in part of
+            # it) is forgiven, a quarter of `still_s` is a move
+            self.away_s += dt
+            if self.away_s > p.still_s / 4:
+                self.anchor, self.still_s, self.away_s = pos, 0.0, 0.0
+            return False
+        self.away_s = 0.0
         self.still_s += dt
         return self.still_s > p.still_s
+
+    def carried(self, still_s: float, gate_m: float) -> bool:
+        """Whether, followed for `still_s / 2` at least, it was carried off where it was first
+        seen, `2 gate_m` or more, at a pace that would take it beyond `gate_m` either way
+        within `still_s`: the pace on which staying put is judged (a belt slower than that is
+        not seen to run)."""
+        if self.age_s < still_s / 2:
+            return False
+        far = float(np.linalg.norm(self.filter.position - self.start))
+        return far > 2 * gate_m and far / self.age_s * still_s > 2 * gate_m
 
     def in_view(self, frame: Frame) -> bool:
         """Whether the predicted centroid still falls on the sensor."""

@@ -96,6 +96,9 @@ class Roster:
         self.joining: dict[tuple[int, int], int] = {}
         """Pairs of tracks seen as faces of one object, and for how many frames running."""
         self._next_id = 1
+        self.seen_running = False
+        """Whether a rigid track has been seen carried off (`LiveTrack.carried`): the belt runs,
+        though nothing gave its speed yet."""
 
     def add_seed(self, seed: Seed) -> None:
         """A known target to follow from the next frame on."""
@@ -262,16 +265,24 @@ class Roster:
         self,
         frame: Frame,
         labels: U16,
-        prior: VelocityPrior,
+        prior: VelocityPrior | None,
         dt: float,
         noise: F64,
         background: BackgroundModel,
     ) -> list[int]:
-        """End the tracks that stay put while the belt runs (`prior`), their pixels becoming
-        scenery (`still_s`); their ids. Changes `labels`."""
+        """End the tracks that stay put while the belt runs, their pixels becoming scenery
+        (`still_s`); their ids. Changes `labels`. The belt runs by its velocity `prior`, or,
+        while none is known, once a rigid track has been seen carried off (`seen_running`):
+        a rail's ghost need not wait for the belt's travel to be found."""
         p = self.params
         bg = background
-        runs = bool(prior.informed and np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
+        if prior is not None and prior.informed:
+            runs = bool(np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
+        else:
+            self.seen_running |= p.rigid and any(
+                t.measured and t.carried(p.still_s, p.gate_m) for t in self.tracks
+            )
+            runs = self.seen_running
         ended = []
         for t in list(self.tracks):
             if t.stays_put(dt, runs):

@@ -123,7 +123,7 @@ class Tracker:
         measured = self.roster.measure(frame, labels, dt, noise, self.background, self.belt, seen)
         born += measured.born
         ended = list(measured.ended) + self.roster.off_belt(labels, self.belt)
-        if ready and prior is not None:
+        if ready and (prior is not None or (p.rigid and self.belt is not None)):
             still = self.roster.to_scenery(frame, labels, prior, dt, noise, self.background)
             if still:  # the scenery took them in: its ranges changed
                 seen = self.background.seen_range(frame)
