@@ -368,7 +368,7 @@ def _box_top(misread: int, taller_beside: bool) -> tuple[int, FinderParams]:
     e1, e2 = plane_basis(normal)
     ok = np.ones((h, w), bool)
     p = FinderParams()
-    tops = find_tops(xyz, rng, ok, plane, e1, e2, pixel, p, np.full((h, w), 0.004))
+    tops = find_tops(xyz, rng, ok, plane, e1, e2, pixel, p)
     return int(np.count_nonzero(np.abs(tops.height_m - 0.2) < 0.01)), p
 
 

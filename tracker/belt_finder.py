@@ -168,8 +168,7 @@ class FinderParams:
             self.max_track_rms_m, self.size_change, self.area_gate, self.settle_s,
             self.min_longest_s, self.done_s, self.min_done_s, self.max_s, self.patience_s,
             self.give_up_s, self.min_shift_m, self.width_every_s, self.max_spread_deg,
-            self.agree_speed,
-            self.min_agreeing, self.max_speed_se,
+            self.agree_speed, self.min_agreeing, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
             raise SegmentError("lengths, speeds, times and shares must be positive numbers")
@@ -681,7 +680,7 @@ FLAT_SPAN = 2
 
 def find_tops(
     xyz: F64, rng: F64, ok: B, plane: PlaneFit, e1: F64, e2: F64, pixel_rad: float,
-    params: FinderParams, sigma: F64,
+    params: FinderParams,
 ) -> Tops:  # fmt: skip
     """The horizontal faces standing above the belt, whole and not cut by the view's edge or
     an invalid pixel (a cut top moves at another pace than the belt).
@@ -690,8 +689,7 @@ def find_tops(
     `top_tilt_deg` allows over the pixels' spacing); it is grown over its neighbours at its
     height (a metric test, so the face's outline does not change with its distance), and its
     centroid weighs each pixel by the area it covers (r² over the cosine of incidence), so
-    near and far parts count as they are. `sigma` is each pixel's range noise: a pixel read
-    high in noise beside a top is not something taller that may hide part of it."""
+    near and far parts count as they are."""
     with np.errstate(invalid="ignore"):
         h = np.where(ok, plane.height(xyz), 0.0)
     fg = ok & (h > params.top_height_m)
@@ -732,8 +730,9 @@ def find_tops(
     # something higher beside a top may hide part of it (only a taller thing can): not followed
     around = ndimage.grey_dilation(labels, size=5)
     ring = ok & (labels == 0) & (around > 0)
-    # taller by more than its noise explains, or over the median of its 3 × 3 heights: a
-    # pixel read high in noise is not something taller
+    # a taller surface: over the median of its 3 × 3 heights. A lone pixel read high is not
+    # one: in noise, or on a moving edge, whose four taps saw different surfaces (it reads
+    # anywhere)
     above = level[around[ring]] + TALLER_M
     higher = ndimage.median_filter(h, 3)[ring] > above
     rings = np.bincount(around[ring], minlength=n)
@@ -1159,7 +1158,7 @@ class BeltFinder:
         if not self._plane_final:
             self._fit_plane(frame, ok, sigma)
         elif self._plane is not None:
-            self._follow(frame, ok, sigma, t)
+            self._follow(frame, ok, t)
             if self._edges is None:
                 self._edges = _EdgeSums.empty(ok.shape)
             if self._edges.frames % self.params.edges_every == 0:
@@ -1225,7 +1224,7 @@ class BeltFinder:
 
     # --- the travel ----------------------------------------------------------------------
 
-    def _follow(self, frame: Frame, ok: B, sigma: F64, t: float) -> None:
+    def _follow(self, frame: Frame, ok: B, t: float) -> None:
         """Follow this frame's tops on, re-estimate the travel, and settle the state."""
         if self._status != "looking":
             return
@@ -1241,7 +1240,6 @@ class BeltFinder:
             self._e2,
             self._pixel_rad,
             p,
-            sigma,
         )
         matched = match_tops(self._follows, tops, t, p)
         taken = {j for j in matched if j is not None}
