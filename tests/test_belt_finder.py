@@ -240,6 +240,35 @@ def test_live_the_finder_settles_then_costs_nothing_and_says_none_when_nothing_m
     assert finder.update(frames[-1]) is settled  # once done, an update does nothing
 
 
+@pytest.mark.parametrize("width_after_s", [2.0, None], ids=["seen-late", "never-seen"])
+def test_once_the_travel_is_final_the_width_is_looked_for_on(monkeypatch, width_after_s):
+    # the belt's edges hidden under its objects until `width_after_s` (or for good): the
+    # travel is found and offered, and the estimate is final only with the width, or once
+    # `give_up_s` has passed
+    params = FinderParams(give_up_s=3.0, patience_s=3.0)
+    finder = BeltFinder(params)
+    fit = finder._fit_width
+    last_t = [0.0]
+
+    def hidden_until():
+        return fit() if width_after_s is not None and last_t[0] >= width_after_s else None
+
+    monkeypatch.setattr(finder, "_fit_width", hidden_until)
+    states = []
+    for frame in _frames(_source(CASES[0]), 200):
+        last_t[0] = frame.device_time_us * 1e-6
+        estimate = finder.update(frame)
+        states.append((last_t[0], estimate.travel, finder.done, estimate.belt))
+        if finder.done:
+            break
+    found_at = next(t for t, travel, _, _ in states if travel == "found")
+    done_at, _, _, belt = states[-1]
+    assert finder.done
+    assert found_at < 1.5  # the travel comes first, and is offered then
+    assert done_at >= (width_after_s or params.give_up_s) - 0.05
+    assert (belt.geometry.width_m is not None) == (width_after_s is not None)
+
+
 def test_invalid_and_nan_pixels_are_not_used():
     source = _source(CASES[0])
     truth = source.belt
