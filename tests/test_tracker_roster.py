@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry
+from tofcut.tracker.live_track import LiveTrack
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.roster import Roster, _beside, _two_objects
 from tofcut.tracker.tracker import Tracker
@@ -138,8 +139,6 @@ def _seen_at(track, point, measured: bool = True) -> None:
 
 
 def test_what_stays_put_is_judged_on_the_frames_it_is_seen_and_forgives_a_moment_away():
-    from tofcut.tracker.live_track import LiveTrack
-
     p = TrackerParams()
     dt, home = 0.02, np.array([0.2, 0.2, 1.0])
     steps = round(p.still_s / dt) + 2
@@ -162,3 +161,18 @@ def test_what_stays_put_is_judged_on_the_frames_it_is_seen_and_forgives_a_moment
     for _ in range(steps * 2):
         _seen_at(still, home)
         assert not still.stays_put(dt, running=False)
+
+
+@pytest.mark.parametrize(("speed", "seconds", "carried"), [(0.3, 1.2, True), (0.06, 6.0, False),
+                                                         (0.3, 0.6, False)])  # fmt: skip
+def test_a_track_is_seen_carried_at_the_pace_staying_put_is_judged_on(speed, seconds, carried):
+    # the belt is seen to run, before its speed is known, by a track carried 2 gate_m at a
+    # pace that would take a box beyond gate_m within still_s, followed for still_s / 2 at
+    # least: not by one crawling at 0.06 m/s, nor one only just seen
+    p = TrackerParams()
+    dt, home = 0.02, np.array([0.0, 0.0, 1.0])
+    track = LiveTrack(1, home[None, :], np.eye(3), p)
+    for k in range(1, round(seconds / dt) + 1):
+        track.predict(dt, None)
+        _seen_at(track, home + np.array([speed * dt * k, 0.0, 0.0]))
+    assert track.carried(p.still_s, p.gate_m) == carried
