@@ -279,9 +279,10 @@ class Roster:
         if prior is not None and prior.informed:
             runs = bool(np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
         else:
-            self.seen_running |= p.rigid and any(
-                t.measured and t.carried(p.still_s, p.gate_m) for t in self.tracks
-            )
+            if not self.seen_running:  # once seen, the belt runs: no need to look again
+                self.seen_running = p.rigid and any(
+                    t.measured and t.carried(p.still_s, p.gate_m) for t in self.tracks
+                )
             runs = self.seen_running
         ended = []
         for t in list(self.tracks):
