@@ -11,9 +11,17 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
-from tofcut.tracker import components_kernels
+from tofcut.tracker import components_kernels, tops_kernels
 from tofcut.tracker.noise import range_noise
-from tofcut.tracker.tops import facing_up, one_object, sides_of, split_by_tops
+from tofcut.tracker.tops import (
+    BASELINE,
+    MAX_SLOPE,
+    MAX_SLOPE_NOISE,
+    facing_up,
+    one_object,
+    sides_of,
+    split_by_tops,
+)
 
 
 def _pair(first_h: float, second_h: float, side_by_side: bool) -> SceneSource:
@@ -61,6 +69,35 @@ def test_flush_boxes_of_one_height_stay_one_piece():
     # range cannot tell them apart: no guess
     pieces, _ = _split(_pair(0.15, 0.15, True))
     assert pieces.max() == 1
+
+
+def test_in_loud_noise_the_tops_are_told_over_a_longer_span():
+    # 2 cm of range noise: over BASELINE pixels a flat top's slope is lost in it, over a
+    # longer span it is not, and the two boxes still come apart
+    source = _pair(0.12, 0.18, True)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    rays = frame.xyz / np.linalg.norm(frame.xyz, axis=-1, keepdims=True)
+    xyz = frame.xyz + rays * np.random.default_rng(4).normal(0, 0.02, frame.range.shape)[..., None]
+    noise = np.full(frame.range.shape, 0.02)
+    body = (truth.labels > 0) & frame.valid
+    belt = source.belt.geometry
+    _, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    assert max(np.median(r) for r in ratios) > MAX_SLOPE_NOISE  # too loud at BASELINE
+    up = facing_up(body, xyz, noise, belt)
+    assert up is not None
+    pieces = split_by_tops(components_kernels.label_pieces(body), up, xyz, noise, belt, 30)
+    assert pieces.max() == 2
+    for obj in (1, 2):
+        owner = np.bincount(pieces[truth.labels == obj]).argmax()
+        assert owner > 0
+        assert np.mean(pieces[truth.labels == obj] == owner) > 0.8
+
+
+def test_where_no_span_quietens_the_slope_no_surface_is_told_facing_up():
+    source = _pair(0.12, 0.18, True)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    body = (truth.labels > 0) & frame.valid
+    assert facing_up(body, frame.xyz, np.full(frame.range.shape, 0.3), source.belt.geometry) is None
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ flush together: they stay one.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection
 from dataclasses import dataclass
 
@@ -44,13 +45,26 @@ MIN_TOP = 20
 """Pixels facing up that make a top."""
 MAX_SLOPE_NOISE = 0.2
 """Where the noise of the measured slope is more than this (a flat top would read steep
-one time in a hundred), no surface is told facing up."""
+one time in a hundred), the slope is taken over a longer span."""
+MAX_BASELINE = 12
+"""The longest span the slope is taken over: where even that leaves the slope's noise above
+`MAX_SLOPE_NOISE`, no surface is told facing up (a top narrower than the span is lost to
+the steep faces round it)."""
 
 
 def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
-    """The pixels of `body` on surfaces facing up from the belt (their slope over `BASELINE`
-    pixels below `MAX_SLOPE`); None where the range noise makes the slope meaningless."""
+    """The pixels of `body` on surfaces facing up from the belt (their slope below
+    `MAX_SLOPE`), over `BASELINE` pixels or, where the range noise makes that slope
+    meaningless, over the shortest span up to `MAX_BASELINE` that makes it mean something
+    (the slope's noise falls as the span grows); None where none does."""
     up, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, BASELINE, MAX_SLOPE)
+    if not any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
+        return up
+    worst = max(float(np.median(r)) if r.size else 0.0 for r in ratios)
+    span = math.ceil(BASELINE * worst / MAX_SLOPE_NOISE)
+    if not span <= MAX_BASELINE:  # also a nan
+        return None
+    up, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, span, MAX_SLOPE)
     if any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return None
     return up
