@@ -12,7 +12,10 @@ normal, pooled over the window) scores the pixels that were on it, were above it
 times, and were never below it. The belt is the layer that scores most; a nearer layer that
 scores at least half as much, and is clearly apart from it, is the belt instead (the floor
 can score high at steep tilts, never a layer above the belt). Heights are 3×3 medians, so
-that a pixel's noise or a wrapped far reading does not pass for something going over it.
+that a pixel's noise or a wrapped far reading does not pass for something going over it, and
+above or below is judged against the median's noise: against one reading's, on a loud line
+the belt seen 13 cm below a layer of box tops did not count as below it, and those tops were
+taken for the belt.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 
 from tofcut._types import F32, F64, B
 from tofcut.tracker import belt_sweep_kernels, stats_kernels
+from tofcut.tracker.background import MEDIAN_SHARES
 from tofcut.tracker.errors import SegmentError
 
 INVALID = -1e3
@@ -52,7 +56,8 @@ class SweepParams:
     min_times: int = 2
     """A pixel is on a layer, or above it, in at least this many samples."""
     above_m: float = 0.03
-    """Above (or below) a layer: by 3 noise sigmas, and at least this."""
+    """Above (or below) a layer: by 3 sigmas of a height's noise (a 3×3 median's), and at least
+    this."""
 
     def __post_init__(self) -> None:
         times = (self.every_s, self.window_s, self.first_s, self.judge_every_s, self.apart_m)
@@ -93,7 +98,8 @@ def swept_layers(
 ) -> list[SweptLayer]:
     """Score each layer (offsets n·p) over (samples, pixels) arrays of heights, usability,
     noise and on-plane band."""
-    reach = np.maximum(np.float32(3.0) * sigma, np.float32(params.above_m))
+    # the heights are 3×3 medians: their noise is a share of one reading's
+    reach = np.maximum(np.float32(3.0 * MEDIAN_SHARES[1]) * sigma, np.float32(params.above_m))
     swept, on, squares = belt_sweep_kernels.sweep_scores(
         heights, ok, reach, band, np.asarray(layers, np.float64), params.min_times
     )
