@@ -132,6 +132,23 @@ def test_a_track_not_seen_this_frame_is_left_to_coast(unseen):
     assert roster.flat_on(labels, _belt(0.5), min_height_m=0.02) == []
 
 
+@pytest.mark.parametrize("entering", [True, False])
+def test_a_track_coming_into_view_is_not_seen_carried_by_its_growing_view(entering):
+    # an object coming into view at the image's border: its centroid moves 0.3 m/s as more of
+    # it shows, then it stands whole in view. Only where it was first seen whole counts (a
+    # crawling belt is not seen to run by the views of a box coming into view)
+    p = TrackerParams()
+    dt, home = 0.02, np.array([0.0, 0.0, 1.0])
+    box = (slice(0, 10), slice(0, 10))
+    square = np.stack(np.meshgrid(np.linspace(0, 0.1, 10), np.linspace(0, 0.1, 10)), -1)
+    view = np.concatenate([square.reshape(-1, 2), np.zeros((100, 1))], axis=1)
+    track = LiveTrack(1, home[None, :] + view, np.eye(3), p)
+    for k in range(1, 61):
+        track.predict(dt, None)
+        track.see(home + view + [0.3 * dt * min(k, 50), 0.0, 0.0], box, entering and k <= 50, None)
+    assert track.carried(p.still_s, p.gate_m) == (not entering)
+
+
 def _seen_at(track, point, measured: bool = True) -> None:
     """The track measured (or not) at `point` this frame."""
     track.filter.x[:3] = point

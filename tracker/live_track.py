@@ -60,7 +60,9 @@ class LiveTrack:
         self.params = params
         self.filter = ConstantVelocity(points.mean(axis=0), params.motion, velocity)
         self.start = self.filter.position
-        """Where it was first seen..."""
+        """Where it was first seen whole in view, as what it is now (not at the image's
+        border, where its centroid moves as more of it comes into view, nor before a
+        restart)..."""
         self.age_s = 0.0
         """...and how long ago."""
         self.shape = shape
@@ -131,6 +133,8 @@ class LiveTrack:
             self.usual_pixels = max(float(m), USUAL_MEMORY * usual)
         self.hidden_s = 0.0
         self.hidden_frames = 0
+        if entering:
+            self.start, self.age_s = self.filter.position, 0.0
         self.last = self.report(points, box, summary)
 
     def restart(self, points: F64, belt: BeltGeometry | None) -> None:
@@ -141,6 +145,7 @@ class LiveTrack:
         self.shape = shape_of(points, SHAPE_FLOOR_M, belt)
         self.cloud = subsample(points, p.cloud_points)
         self.usual_pixels = 0.0
+        self.start, self.age_s = self.filter.position, 0.0
 
     def coast(self, dt: float, frame: Frame) -> bool:
         """Not seen in this frame (`dt` seconds on): predicted through occlusion until hidden
