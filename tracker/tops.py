@@ -61,10 +61,12 @@ def facing_up(body: B, xyz: F64, noise: F64, belt: BeltGeometry) -> B | None:
     if not any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return up
     worst = max(float(np.median(r)) if r.size else 0.0 for r in ratios)
-    span = math.ceil(BASELINE * worst / MAX_SLOPE_NOISE)
+    span = BASELINE * worst / MAX_SLOPE_NOISE
     if not span <= MAX_BASELINE:  # also a nan
         return None
-    up, *ratios = tops_kernels.facing_pixels(body, xyz, noise, belt.normal, span, MAX_SLOPE)
+    up, *ratios = tops_kernels.facing_pixels(
+        body, xyz, noise, belt.normal, math.ceil(span), MAX_SLOPE
+    )
     if any(stats_kernels.median_above(r, MAX_SLOPE_NOISE) for r in ratios):
         return None
     return up
