@@ -34,6 +34,7 @@ from scipy import ndimage
 from tofcut._types import F32, F64, I64, B
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
+from tofcut.tracker import stats_kernels
 from tofcut.tracker.belt_sweep import (
     SweepParams,
     SweepWindow,
@@ -734,7 +735,7 @@ def find_tops(
     # one: in noise, or on a moving edge, whose four taps saw different surfaces (it reads
     # anywhere)
     above = level[around[ring]] + TALLER_M
-    higher = ndimage.median_filter(h, 3)[ring] > above
+    higher = stats_kernels.median3_at(h, ring)[ring] > above  # the median at the ring only
     rings = np.bincount(around[ring], minlength=n)
     enough = np.maximum(3, 0.05 * rings)
     cut |= np.bincount(around[ring][higher], minlength=n) > enough
