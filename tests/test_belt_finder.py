@@ -26,9 +26,11 @@ from tofcut.tracker.belt_finder import (
     FinderParams,
     PlaneFit,
     Segment,
+    WidthFit,
     find_belt,
     find_tops,
     fit_plane,
+    holds_tops,
     plane_basis,
     travel_from,
     weighted_median,
@@ -338,8 +340,11 @@ def test_the_weighted_median_follows_the_weight():
     assert weighted_median(values, np.array([1.0, 1.0, 1.0, 10.0])) == 100.0
 
 
-def _segment(vx: float, vy: float, seconds: float, frames: int, rms_m: float) -> Segment:
-    return Segment(np.array([vx, vy]), seconds, frames, rms_m)
+def _segment(
+    vx: float, vy: float, seconds: float, frames: int, rms_m: float, across: float = 0.0
+) -> Segment:
+    """A top followed along (vx, vy), its mean position `across` the travel (x up)."""
+    return Segment(np.array([vx, vy]), seconds, frames, rms_m, np.array([0.0, across]))
 
 
 def test_the_travel_is_judged_by_the_tops_that_agree_not_by_the_scatter_of_all():
@@ -363,6 +368,22 @@ def test_the_travel_is_judged_by_the_tops_that_agree_not_by_the_scatter_of_all()
     assert travel.agreeing > p.min_agreeing
     assert travel.direction_spread_deg < 1.0  # of the tops that agree
     assert travel.seconds >= p.settle_s
+
+
+@pytest.mark.parametrize(
+    ("width", "centre", "held"),
+    [(0.47, 0.0, True), (0.10, 0.12, False), (0.42, 0.02, True), (0.30, 0.0, False)],
+)
+def test_a_width_that_leaves_the_carried_tops_outside_is_not_the_belts(width, centre, held):
+    # ten tops carried along x at 0.1 m/s, spread 0.4 m across a belt 0.47 m wide: a width
+    # read 0.10 m wide (held-out line 1481's, in 5.7 cm of noise) leaves most outside; one
+    # stray top far outside, and those moving against the belt, do not count
+    tops = [_segment(0.1, 0.0, 2.0, 50, 0.002, a) for a in np.linspace(-0.2, 0.2, 10)]
+    tops += [_segment(0.1, 0.0, 2.0, 50, 0.002, 0.6), _segment(-0.1, 0.0, 2.0, 50, 0.002, 1.0)]
+    p = FinderParams()
+    travel = travel_from(tops, p)
+    assert travel is not None
+    assert holds_tops(WidthFit(width, centre, 10, 0.0), travel, tops, p) == held
 
 
 def test_tops_that_disagree_with_the_weight_behind_them_leave_the_travel_unknown():

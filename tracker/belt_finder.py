@@ -232,6 +232,8 @@ class Segment:
     seconds: float
     frames: int
     rms_m: float
+    centre: F64
+    """(2,) m, its mean position in the plane's basis (where on the belt it went)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -814,7 +816,7 @@ class _Follow:
         ss_u = self.suu - self.su * self.su / n  # residual sum of squares of u = a + b·t
         ss_res = np.maximum(ss_u - slope * slope * var_t, 0.0)
         rms = math.sqrt(float(ss_res.sum()) / n)
-        return Segment(slope, self.last_t - self.t0, n, rms)
+        return Segment(slope, self.last_t - self.t0, n, rms, self.uv0 + self.su / n)
 
 
 def match_tops(
@@ -975,6 +977,31 @@ def belt_edges(
     if spread > MAX_WIDTH_SPREAD_M:
         return None  # the slices disagree: the edges seen are not the belt's (boxes hide them)
     return WidthFit(width, float(np.median(centres)), len(widths), spread)
+
+
+def holds_tops(
+    width: WidthFit, travel: TravelFit, segments: list[Segment], params: FinderParams
+) -> bool:
+    """Whether the span of the belt's `width` holds the tops carried along the `travel` (their mean
+    positions within it, `MAX_OUTSIDE_M` of slack): edges read wrong (in loud noise, or
+    where a rail's shadow ends the belt's points early) leave the tops outside."""
+    across = np.array([-travel.direction[1], travel.direction[0]])
+    carried = [
+        float(s.centre @ across) for s in segments
+        if s.seconds >= params.min_follow_s and s.rms_m <= params.max_track_rms_m
+        and float(s.velocity @ travel.direction) >= travel.speed_mps / 2
+    ]  # fmt: skip
+    if not carried:
+        return True
+    off = np.abs(np.array(carried) - width.centre_m) - width.width_m / 2
+    return int((off > MAX_OUTSIDE_M).sum()) <= MAX_OUTSIDE_SHARE * len(carried)
+
+
+MAX_OUTSIDE_M = 0.03
+"""A carried top's mean position may lie this far outside the belt's edges (its outline
+misread at a rail)..."""
+MAX_OUTSIDE_SHARE = 0.1
+"""...and this share of them farther: a width leaving more outside is not the belt's."""
 
 
 class _Slices:
@@ -1362,10 +1389,14 @@ class BeltFinder:
         return self._travel.direction if self._travel is not None else self._axis2d
 
     def _fit_width(self) -> WidthFit | None:
-        """The width across the travel (none without one: across what?)."""
+        """The width across the travel (none without one: across what?), if it holds the
+        tops that were carried along it (`holds_tops`)."""
         if self._travel is None or self._edges is None:
             return None
-        return self._edges.width(self._travel.direction)
+        width = self._edges.width(self._travel.direction)
+        if width is None or not holds_tops(width, self._travel, self._segments, self.params):
+            return None
+        return width
 
     def _make_estimate(self) -> BeltEstimate:
         """The estimate from what is known now."""
