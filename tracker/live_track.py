@@ -74,12 +74,16 @@ class LiveTrack:
         """The object's size in pixels when seen whole (slowly forgetting the largest view)."""
         self.measured = False
         """Whether the last frame measured the track (a whole, untainted view)."""
+        self.entering = False
+        """Whether it was last seen at the image's border."""
         self.hidden_s = 0.0
         self.hidden_frames = 0
         self.split_frames = 0
         """Frames running in which the track's mask held two surfaces."""
         self.anchor: F64 | None = None
-        """Where the track has been seen staying, and for how long (`still_s`)."""
+        """Where the track has been seen staying, its view's size there, and for how long
+        (`still_s`)."""
+        self.anchor_pixels = 0
         self.still_s = 0.0
         self.away_s = 0.0
         """How long it has been seen away from `anchor` since it was last seen there."""
@@ -133,6 +137,7 @@ class LiveTrack:
             self.usual_pixels = max(float(m), USUAL_MEMORY * usual)
         self.hidden_s = 0.0
         self.hidden_frames = 0
+        self.entering = entering
         if entering:
             self.start, self.age_s = self.filter.position, 0.0
         self.last = self.report(points, box, summary)
@@ -162,39 +167,42 @@ class LiveTrack:
         )  # fmt: skip
         return True
 
-    def stays_put(self, dt: float, running: bool) -> bool:
-        """Whether it has been seen within `gate_m` of one place for `still_s` (`dt` seconds
-        more now) while the belt runs (`running`): part of the machine, not something on it."""
+    def stays_put(self, dt: float, hold_s: float | None) -> bool:
+        """Whether it has been seen within `gate_m` of one place for `hold_s` (`dt` seconds
+        more now) while the belt runs (`hold_s` None while it does not, `still_time`): part
+        of the machine, not something on it. At the image's border a view that grows or
+        shrinks is coming into or going out of view on a slow belt, not staying put."""
         p = self.params
         pos = self.filter.position
-        if not running:
+        if hold_s is None:
             self.anchor, self.still_s, self.away_s = None, 0.0, 0.0
             return False
         if not self.measured:  # not seen whole this frame: it neither stayed nor moved
             return False
+        pixels = self.last.pixels if self.last is not None else 0
         if self.anchor is None:
-            self.anchor, self.still_s, self.away_s = pos, 0.0, 0.0
+            self.anchor, self.anchor_pixels, self.still_s, self.away_s = pos, pixels, 0.0, 0.0
             return False
-        if np.linalg.norm(pos - self.anchor) > p.gate_m:
+        resized = abs(pixels - self.anchor_pixels) > (1 - p.whole_fraction) * self.anchor_pixels
+        if np.linalg.norm(pos - self.anchor) > p.gate_m or (self.entering and resized):
             # seen away from where it stayed: a moment (something passing took in part of
-            # it) is forgiven, a quarter of `still_s` is a move
+            # it) is forgiven, a quarter of `hold_s` is a move
             self.away_s += dt
-            if self.away_s > p.still_s / 4:
-                self.anchor, self.still_s, self.away_s = pos, 0.0, 0.0
+            if self.away_s > hold_s / 4:
+                self.anchor, self.anchor_pixels = pos, pixels
+                self.still_s, self.away_s = 0.0, 0.0
             return False
         self.away_s = 0.0
         self.still_s += dt
-        return self.still_s > p.still_s
+        return self.still_s > hold_s
 
-    def carried(self, still_s: float, gate_m: float) -> bool:
-        """Whether, followed for `still_s / 2` at least, it was carried off where it was first
-        seen, `2 gate_m` or more, at a pace that would take it beyond `gate_m` either way
-        within `still_s`: the pace on which staying put is judged (a belt slower than that is
-        not seen to run)."""
+    def pace(self, still_s: float, gate_m: float) -> float:
+        """The pace (m/s) it was carried off at, where it was first seen, if followed for
+        `still_s / 2` at least and carried `2 gate_m` or more; else 0."""
         if self.age_s < still_s / 2:
-            return False
+            return 0.0
         far = float(np.linalg.norm(self.filter.position - self.start))
-        return far > 2 * gate_m and far / self.age_s * still_s > 2 * gate_m
+        return far / self.age_s if far > 2 * gate_m else 0.0
 
     def in_view(self, frame: Frame) -> bool:
         """Whether the predicted centroid still falls on the sensor."""

@@ -46,8 +46,9 @@ class TrackerParams:
     max_hidden_s: float = 2.0
     """A hidden track is predicted this long before it ends."""
     still_s: float = 2.0
-    """A track seen within `gate_m` of one place this long while the belt would have carried
-    it twice that far is part of the machine (a gantry, a guide): it becomes scenery."""
+    """A track seen within `gate_m` of one place this long, and as long as the belt takes to
+    carry an object twice that far, is part of the machine (a gantry, a guide): it becomes
+    scenery (`roster.still_time`)."""
     whole_fraction: float = 0.85
     """A view within this share of the track's usual size (either way) shows the whole
     object, and is measured; others are partial (occlusion) or tainted."""

@@ -96,9 +96,9 @@ class Roster:
         self.joining: dict[tuple[int, int], int] = {}
         """Pairs of tracks seen as faces of one object, and for how many frames running."""
         self._next_id = 1
-        self.seen_running = False
-        """Whether a rigid track has been seen carried off (`LiveTrack.carried`): the belt runs,
-        though nothing gave its speed yet."""
+        self.seen_pace = 0.0
+        """The pace (m/s) a rigid track has been seen carried off at (`LiveTrack.pace`), 0
+        until one is: the belt runs, though nothing gave its speed yet."""
 
     def add_seed(self, seed: Seed) -> None:
         """A known target to follow from the next frame on."""
@@ -271,22 +271,23 @@ class Roster:
         background: BackgroundModel,
     ) -> list[int]:
         """End the tracks that stay put while the belt runs, their pixels becoming scenery
-        (`still_s`); their ids. Changes `labels`. The belt runs by its velocity `prior`, or,
-        while none is known, once a rigid track has been seen carried off (`seen_running`):
-        a rail's ghost need not wait for the belt's travel to be found."""
+        (`still_time`); their ids. Changes `labels`. The belt runs by its velocity `prior`,
+        or, while none is known, at the pace a rigid track has been seen carried off at
+        (`seen_pace`): a rail's ghost need not wait for the belt's travel to be found."""
         p = self.params
         bg = background
         if prior is not None and prior.informed:
-            runs = bool(np.linalg.norm(prior.mean) * p.still_s > 2 * p.gate_m)
+            pace = float(np.linalg.norm(prior.mean))
         else:
-            if not self.seen_running:  # once seen, the belt runs: no need to look again
-                self.seen_running = p.rigid and any(
-                    t.measured and t.carried(p.still_s, p.gate_m) for t in self.tracks
-                )
-            runs = self.seen_running
+            if not self.seen_pace and p.rigid:  # once seen, the belt runs: no need to look again
+                paces = [t.pace(p.still_s, p.gate_m) for t in self.tracks if t.measured]
+                pace = max(paces, default=0.0)
+                self.seen_pace = pace if still_time(pace, p.still_s, p.gate_m) else 0.0
+            pace = self.seen_pace
+        hold_s = still_time(pace, p.still_s, p.gate_m)
         ended = []
         for t in list(self.tracks):
-            if t.stays_put(dt, runs):
+            if t.stays_put(dt, hold_s):
                 mask = labels == t.id
                 bg.absorb(frame, mask, noise)
                 labels[mask] = 0
@@ -557,3 +558,13 @@ def _two_objects(pieces: I32, surfaces: I64, mask: B, rng: F64, step_m: float) -
         if float(np.median(seen)) > near + step_m:
             return True
     return False
+
+
+def still_time(pace: float, still_s: float, gate_m: float) -> float | None:
+    """How long a track must be seen within `gate_m` of one place, on a belt running at
+    `pace` (m/s), to be part of the machine: `still_s`, or the time the belt takes to carry
+    an object `2 gate_m`, whichever is longer. None on a belt too slow to tell (not `2
+    gate_m` in twice `still_s`) or standing."""
+    if pace * still_s <= gate_m:
+        return None
+    return max(still_s, 2 * gate_m / pace)
