@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from tofcut._types import F64, B
+from tofcut._types import F64, I64, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels
@@ -368,7 +368,9 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
     a band along its length narrower than `MAX_RAIL_M` that runs `MIN_RAIL_M` or more, and
     nearly as far as the part's longest band. Boxes standing against a rail join its part in
     the image but not its band: they cover their own stretch of the bands beside it, not the
-    rail's whole length; a row of boxes as long as the rail is wider than one."""
+    rail's whole length; a row of boxes as long as the rail is wider than one. Where boxes
+    beside it turn the part's axis off the rail's, the rail is looked for along other ways
+    too (`_band_runs`), and taken only where it crosses the view (`_crosses_view`)."""
     # a rail's pixels are broken up by noise: bridged
     near = ndimage.binary_dilation(above, EIGHT)
     parts, _ = ndimage.label(near, EIGHT)
@@ -386,23 +388,89 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
         spread, axes = np.linalg.eigh(np.cov(centred))  # ascending
         if 4.0 * math.sqrt(max(spread[1], 0.0)) <= MIN_RAIL_M:  # ±2σ of a bar: most of it
             continue
-        length, side = axes[:, 1] @ centred, axes[:, 0] @ centred
-        band = np.floor(side / RAIL_BIN_M).astype(np.int64)
-        band -= band.min()
-        stretch = np.floor((length - length.min()) / RAIL_STRETCH_M).astype(np.int64)
-        # how far each band runs: the stretches along it that hold a point of it
-        held = np.unique(np.stack([band, stretch]), axis=1)[0]
-        runs = np.bincount(held, minlength=band.max() + 1) * RAIL_STRETCH_M
-        # a rail runs the part's whole length, but for what hides it; a box beside it less
-        long = runs >= max(MIN_RAIL_M, RAIL_RUN_SHARE * runs.max())
-        lanes, _ = ndimage.label(long)
-        narrow = np.bincount(lanes) * RAIL_BIN_M < MAX_RAIL_M
-        narrow[0] = False
-        on_rail = narrow[lanes[band]]
+        on_rail = _narrow_lanes(*_band_runs(axes[:, 1] @ centred, axes[:, 0] @ centred))
         where = np.zeros(mine.sum(), bool)
+        if not on_rail.any():
+            principal = math.atan2(axes[1, 1], axes[0, 1])
+            on_rail = _narrow_lanes(*_turned_band_runs(centred, principal))
+            where[ok] = on_rail
+            rows, cols = np.nonzero(mine)
+            if not _crosses_view(
+                rows[where] + box[0].start, cols[where] + box[1].start, above.shape
+            ):
+                continue
         where[ok] = on_rail
         rails[box][mine] = where
     return rails
+
+
+def _narrow_lanes(band: I64, runs: F64) -> B:
+    """Which points lie in a lane of bands that run `MIN_RAIL_M` or more, and nearly as far
+    as the longest (a rail runs the part's whole length, but for what hides it; a box beside
+    it less), narrower than `MAX_RAIL_M` together."""
+    long = runs >= max(MIN_RAIL_M, RAIL_RUN_SHARE * runs.max())
+    lanes, _ = ndimage.label(long)
+    narrow = np.bincount(lanes) * RAIL_BIN_M < MAX_RAIL_M
+    narrow[0] = False
+    on_lane: B = narrow[lanes[band]]
+    return on_lane
+
+
+def _band_runs(length: F64, side: F64) -> tuple[I64, F64]:
+    """Each point's band across the way a rail would run (`RAIL_BIN_M` wide, by its `side`
+    position), and how far each band runs along it (the `RAIL_STRETCH_M` stretches of its
+    `length` position that hold a point of it)."""
+    band = np.floor(side / RAIL_BIN_M).astype(np.int64)
+    band -= band.min()
+    stretch = np.floor((length - length.min()) / RAIL_STRETCH_M).astype(np.int64)
+    held = np.unique(np.stack([band, stretch]), axis=1)[0]
+    return band, np.bincount(held, minlength=band.max() + 1) * RAIL_STRETCH_M
+
+
+def _turned_band_runs(centred: F64, principal: float) -> tuple[I64, F64]:
+    """`_band_runs` along the way, within `RAIL_TURN_DEG` of the `principal` axis (radians in
+    the belt's plane), along which a band runs farthest: boxes beside a rail turn the axis
+    of the part they make with it off the rail's."""
+
+    def farthest(angles: F64) -> tuple[float, I64, F64]:
+        found = []
+        for a in angles.tolist():
+            c, s = math.cos(a), math.sin(a)
+            found.append(
+                (a, *_band_runs(c * centred[0] + s * centred[1], c * centred[1] - s * centred[0]))
+            )
+        # a band's run is counted in whole stretches: of the ways a band runs farthest,
+        # the one whose bands that run nearly as far run farthest in all (a rail's width
+        # in bands of its full length, not smeared over more bands that run part of it)
+        return max(
+            found, key=lambda f: (f[2].max(), f[2][f[2] >= RAIL_RUN_SHARE * f[2].max()].sum())
+        )
+
+    turn, step = math.radians(RAIL_TURN_DEG), math.radians(RAIL_STEP_DEG)
+    a, _, _ = farthest(principal + np.arange(-turn, turn + step / 2, step))
+    _, band, runs = farthest(a + np.linspace(-step / 2, step / 2, 9))
+    return band, runs
+
+
+def _crosses_view(rows: I64, cols: I64, shape: tuple[int, int]) -> bool:
+    """Whether pixels at `rows`, `cols` reach two sides of the image: a rail runs on past the
+    view at both ends; a row of boxes standing in it seldom does."""
+    if rows.size == 0:
+        return False
+    sides = (
+        rows.min() <= EDGE_PX, cols.min() <= EDGE_PX,
+        rows.max() >= shape[0] - 1 - EDGE_PX, cols.max() >= shape[1] - 1 - EDGE_PX,
+    )  # fmt: skip
+    return sum(sides) >= 2
+
+
+RAIL_TURN_DEG = 30
+"""A rail's run is looked for this far either way of its part's principal axis..."""
+RAIL_STEP_DEG = 2
+"""...in steps of this, then of an eighth of it round the best (over 1 m a rail turned
+0.25° off moves 4 mm across: its bands run its length)."""
+EDGE_PX = 2
+"""A part this near the image's side reaches it (the outermost pixels read poorly)."""
 
 
 def standing_regions(model: F64, sigma: F64, usable: B, seen: F64, params: BackgroundParams) -> B:
