@@ -370,7 +370,7 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
     the image but not its band: they cover their own stretch of the bands beside it, not the
     rail's whole length; a row of boxes as long as the rail is wider than one. Where boxes
     beside it turn the part's axis off the rail's, the rail is looked for along other ways
-    too (`_band_runs`), and taken only where it crosses the view (`_crosses_view`)."""
+    too (`_turned_band_runs`), and taken only where it crosses the view (`_crosses_view`)."""
     # a rail's pixels are broken up by noise: bridged
     near = ndimage.binary_dilation(above, EIGHT)
     parts, _ = ndimage.label(near, EIGHT)
@@ -388,18 +388,16 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
         spread, axes = np.linalg.eigh(np.cov(centred))  # ascending
         if 4.0 * math.sqrt(max(spread[1], 0.0)) <= MIN_RAIL_M:  # ±2σ of a bar: most of it
             continue
-        on_rail = _narrow_lanes(*_band_runs(axes[:, 1] @ centred, axes[:, 0] @ centred))
         where = np.zeros(mine.sum(), bool)
-        if not on_rail.any():
+        where[ok] = _narrow_lanes(*_band_runs(axes[:, 1] @ centred, axes[:, 0] @ centred))
+        if not where.any():
             principal = math.atan2(axes[1, 1], axes[0, 1])
-            on_rail = _narrow_lanes(*_turned_band_runs(centred, principal))
-            where[ok] = on_rail
+            where[ok] = _narrow_lanes(*_turned_band_runs(centred, principal))
             rows, cols = np.nonzero(mine)
             if not _crosses_view(
                 rows[where] + box[0].start, cols[where] + box[1].start, above.shape
             ):
                 continue
-        where[ok] = on_rail
         rails[box][mine] = where
     return rails
 

@@ -982,9 +982,9 @@ def belt_edges(
 def holds_tops(
     width: WidthFit, travel: TravelFit, segments: list[Segment], params: FinderParams
 ) -> bool:
-    """Whether the span of the belt's `width` holds the tops carried along the `travel` (their mean
-    positions within it, `MAX_OUTSIDE_M` of slack): edges read wrong (in loud noise, or
-    where a rail's shadow ends the belt's points early) leave the tops outside."""
+    """Whether the belt's `width` holds the tops carried along the `travel` (their mean
+    positions within its edges, `MAX_OUTSIDE_M` of slack): edges read wrong (in loud noise,
+    or where a rail's shadow ends the belt's points early) leave the tops outside."""
     across = np.array([-travel.direction[1], travel.direction[0]])
     carried = [
         float(s.centre @ across) for s in segments

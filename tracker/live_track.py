@@ -197,8 +197,8 @@ class LiveTrack:
         return self.still_s > hold_s
 
     def pace(self, still_s: float, gate_m: float) -> float:
-        """The pace (m/s) it was carried off at, where it was first seen, if followed for
-        `still_s / 2` at least and carried `2 gate_m` or more; else 0."""
+        """The pace (m/s) it was carried off at from where it was first seen whole, if
+        followed for `still_s / 2` at least and carried `2 gate_m` or more; else 0."""
         if self.age_s < still_s / 2:
             return 0.0
         far = float(np.linalg.norm(self.filter.position - self.start))
