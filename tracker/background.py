@@ -422,7 +422,8 @@ def _band_runs(length: F64, side: F64) -> tuple[I64, F64]:
     band -= band.min()
     stretch = np.floor((length - length.min()) / RAIL_STRETCH_M).astype(np.int64)
     held = np.unique(np.stack([band, stretch]), axis=1)[0]
-    return band, np.bincount(held, minlength=band.max() + 1) * RAIL_STRETCH_M
+    runs = np.bincount(held, minlength=band.max() + 1).astype(np.float64) * RAIL_STRETCH_M
+    return band, runs
 
 
 def _turned_band_runs(centred: F64, principal: float) -> tuple[I64, F64]:
@@ -455,9 +456,10 @@ def _crosses_view(rows: I64, cols: I64, shape: tuple[int, int]) -> bool:
     view at both ends; a row of boxes standing in it seldom does."""
     if rows.size == 0:
         return False
+    top, left, bottom, right = int(rows.min()), int(cols.min()), int(rows.max()), int(cols.max())
     sides = (
-        rows.min() <= EDGE_PX, cols.min() <= EDGE_PX,
-        rows.max() >= shape[0] - 1 - EDGE_PX, cols.max() >= shape[1] - 1 - EDGE_PX,
+        top <= EDGE_PX, left <= EDGE_PX,
+        bottom >= shape[0] - 1 - EDGE_PX, right >= shape[1] - 1 - EDGE_PX,
     )  # fmt: skip
     return sum(sides) >= 2
 
