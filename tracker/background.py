@@ -26,7 +26,7 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.neighbours import EIGHT
+from tofcut.tracker.neighbours import EIGHT, sides_reached
 
 NOISE_SHARE = 0.7
 """Share of the noise its amplitude implies that a pixel's learned noise is at least: three
@@ -370,7 +370,8 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
     the image but not its band: they cover their own stretch of the bands beside it, not the
     rail's whole length; a row of boxes as long as the rail is wider than one. Where boxes
     beside it turn the part's axis off the rail's, the rail is looked for along other ways
-    too (`_turned_band_runs`), and taken only where it crosses the view (`_crosses_view`)."""
+    too (`_turned_band_runs`), and taken only where it crosses the view (reaches two of its
+    sides)."""
     # a rail's pixels are broken up by noise: bridged
     near = ndimage.binary_dilation(above, EIGHT)
     parts, _ = ndimage.label(near, EIGHT)
@@ -393,10 +394,13 @@ def _rails(above: B, points: F64, belt: BeltGeometry) -> B:
         if not where.any():
             principal = math.atan2(axes[1, 1], axes[0, 1])
             where[ok] = _narrow_lanes(*_turned_band_runs(centred, principal))
+            if not where.any():
+                continue
+            # a rail runs on past the view at both ends; a row of boxes in it seldom does
             rows, cols = np.nonzero(mine)
-            if not _crosses_view(
-                rows[where] + box[0].start, cols[where] + box[1].start, above.shape
-            ):
+            rows, cols = rows[where] + box[0].start, cols[where] + box[1].start
+            lane = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+            if sides_reached(lane, above.shape, EDGE_PX) < 2:
                 continue
         rails[box][mine] = where
     return rails
@@ -449,19 +453,6 @@ def _turned_band_runs(centred: F64, principal: float) -> tuple[I64, F64]:
     a, _, _ = farthest(principal + np.arange(-turn, turn + step / 2, step))
     _, band, runs = farthest(a + np.linspace(-step / 2, step / 2, 9))
     return band, runs
-
-
-def _crosses_view(rows: I64, cols: I64, shape: tuple[int, int]) -> bool:
-    """Whether pixels at `rows`, `cols` reach two sides of the image: a rail runs on past the
-    view at both ends; a row of boxes standing in it seldom does."""
-    if rows.size == 0:
-        return False
-    top, left, bottom, right = int(rows.min()), int(cols.min()), int(rows.max()), int(cols.max())
-    sides = (
-        top <= EDGE_PX, left <= EDGE_PX,
-        bottom >= shape[0] - 1 - EDGE_PX, right >= shape[1] - 1 - EDGE_PX,
-    )  # fmt: skip
-    return sum(sides) >= 2
 
 
 RAIL_TURN_DEG = 30

@@ -1,4 +1,5 @@
-"""A pixel's 8 neighbours, defined once for the tracker and the paper's segmentation.
+"""A pixel's 8 neighbours, defined once for the tracker and the paper's segmentation, and
+the sides of the image a region reaches (`sides_reached`).
 
 Each undirected pair of 8-neighbours is met once along one of the four forward directions,
 `OFFSETS` (east, south, south-east, south-west): a (4, H, W) array of pair weights holds at
@@ -39,3 +40,13 @@ def pair_slices(shape: tuple[int, int], k: int) -> tuple[Region, Region]:
     else:
         cols_p, cols_q = slice(-du, w), slice(0, w + du)
     return (rows_p, cols_p), (rows_q, cols_q)
+
+
+def sides_reached(region: Region, shape: tuple[int, int], margin: int = 0) -> int:
+    """How many of the image's four sides a region (bounding slices) comes within `margin`
+    pixels of: one or more, something coming into view; two, something running across it."""
+    rows, cols = region
+    return (
+        int(rows.start <= margin) + int(cols.start <= margin)
+        + int(rows.stop >= shape[0] - margin) + int(cols.stop >= shape[1] - margin)
+    )  # fmt: skip

@@ -29,7 +29,7 @@ from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
 from tofcut.tracker.errors import SegmentError
 from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
-from tofcut.tracker.neighbours import EIGHT
+from tofcut.tracker.neighbours import EIGHT, sides_reached
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
 from tofcut.tracker.tops import facing_up, level, meetings, seamless, sides_of
@@ -63,14 +63,6 @@ class Measured:
 
 
 _NONE = np.zeros((0, 0), bool)
-
-
-def _on_border(box: tuple[slice, slice], shape: tuple[int, int]) -> bool:
-    """Whether a box (a mask's bounding slices) touches the edge of the image."""
-    rows, cols = box
-    return bool(
-        rows.start == 0 or cols.start == 0 or rows.stop == shape[0] or cols.stop == shape[1]
-    )
 
 
 def _touching_pieces(labels: U16, pieces: I32, reach: int) -> dict[int, I32]:
@@ -202,7 +194,7 @@ class Roster:
             if n >= p.min_pixels:
                 assert box is not None
                 pts = held[starts[k] : starts[k + 1]]
-                entering = _on_border(box, labels.shape)
+                entering = sides_reached(box, labels.shape) > 0
                 if pieces is not None and t.id in touching:
                     # what stands out right beside a track and goes on from its surface is
                     # more of it: an object coming into view is bigger than its mask, one
@@ -483,7 +475,7 @@ def _solid(piece: B, min_pixels: int) -> bool:
     all in it, or it is coming into view. A sliver along a depth edge (mixed pixels
     flickering in front of the scenery, a rail's rim) has none; the narrowest object has."""
     box = _box_of(piece)
-    if _on_border(box, piece.shape):
+    if sides_reached(box, piece.shape) > 0:
         return True  # coming into view: a sliver of it first
     core = ndimage.binary_erosion(piece[box], EIGHT)
     return int(np.count_nonzero(core)) * 2 >= min_pixels
