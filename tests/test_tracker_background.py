@@ -155,6 +155,40 @@ def test_an_object_in_front_of_scenery_whose_phase_wrapped_round_stands_out():
     np.testing.assert_array_equal(model.range[wrapped], 0.3)
 
 
+def test_scenery_going_on_from_a_wrapped_far_surface_is_not_laid_under_the_belt():
+    """Seen at a slant, the far floor read near by its wrapped phase rises over the belt
+    from heights no object reaches down to ones it could: the lower part goes on from the
+    higher without a step, and is the same floor, not something standing on the belt."""
+    model, frame, _, belt = _learned()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays = frame.xyz / frame.range[..., None]
+    over = model.known & frame.valid & np.isfinite(belt.range_along(rays))
+    rows = np.nonzero(over.any(axis=1))[0]
+    far = over.copy()
+    far[rows[len(rows) // 3] :] = False
+    camera = float(belt.height(np.zeros(3)))
+    # from 0.8 of the camera's height over the belt (read nearest) down to 0.2, row by row
+    share = np.interp(np.arange(frame.shape[0]), [rows[0], rows[len(rows) // 3]], [0.8, 0.2])
+    floor = np.full(frame.shape, np.nan)
+    for r in np.nonzero(far.any(axis=1))[0]:
+        lifted = dataclasses.replace(belt, point=belt.point + share[r] * camera * belt.normal)
+        floor[r] = lifted.range_along(rays[r])
+    model.range[far] = floor[far]
+    model.sigma[far] = 0.1  # loud, as far and dark surfaces are
+    low = far & (share[:, None] < 0.45)
+    assert low.sum() > 50
+
+    model.clear_belt(frame, belt)
+    np.testing.assert_array_equal(model.range[far], floor[far])
+
+    # the same low rows on their own, with no higher floor beyond them: something standing
+    # on the belt while the scenery was learned, laid under the belt as before
+    model.range[far & ~low] = np.nan
+    model.known[far & ~low] = False
+    model.clear_belt(frame, belt)
+    assert (model.range[low] > floor[low]).mean() > 0.9
+
+
 @pytest.mark.parametrize("turn_deg", [0.0, 25.0])
 @pytest.mark.parametrize("crosses", [True, False], ids=["across-the-view", "within-it"])
 def test_a_rail_is_told_with_a_box_standing_against_it(turn_deg, crosses):

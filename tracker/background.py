@@ -191,7 +191,8 @@ class BackgroundModel:
         belt shows there). A belt laid before is taken off first, where nothing was learned
         over it since: the belt found from the data can move to another layer (the floor
         beside a raised belt was taken for it), and what it laid was never seen. What `absorb`
-        took in (a track that stayed put while the belt ran: a rail) is never covered again."""
+        took in (a track that stayed put while the belt ran: a rail) is never covered again,
+        nor is a far surface read near by its wrapped phase (`_going_on`)."""
         back = self._laid & (self.range == self._laid_range)
         self.range[back] = self._unlaid_range[back]
         self.sigma[back] = self._unlaid_sigma[back]
@@ -202,11 +203,18 @@ class BackgroundModel:
         on = self.known & np.isfinite(surface) & belt.over_belt(points)
         with np.errstate(invalid="ignore"):
             off = self.range - surface
-            above = on & (off < -np.maximum(3.0 * self.sigma, self.params.min_height_m))
-            above &= on_belt_height(points, belt)
+            low = on_belt_height(points, belt)
+            above = on & (off < -np.maximum(3.0 * self.sigma, self.params.min_height_m)) & low
             behind = on & (off > np.maximum(3.0 * self.sigma, self.params.min_height_m))
             behind &= off < BEHIND_BELT_M
             level = on & (np.abs(off) < LEVEL_M)
+        # scenery standing higher over the belt than anything on it can is a far surface
+        # (the floor past the belt, seen at a slant) read near because its phase wrapped
+        # round: what stands in front of it reads farther than it (`seen_range`), and what
+        # goes on from it without a step is more of it
+        self._wrapped = self.known & np.isfinite(points).all(axis=-1) & ~low
+        self._wrapped_belt = belt
+        above &= ~_going_on(above, self._wrapped, self.range, self.sigma)
         fix = (_objects_only(above, points, belt, level) | behind) & ~self._absorbed
         self._laid = fix
         self._unlaid_range[fix] = self.range[fix]
@@ -215,15 +223,6 @@ class BackgroundModel:
         self.sigma[fix] = np.maximum(self.sigma[fix], self.params.min_sigma_m)
         self._laid_range = np.where(fix, self.range, np.nan)
         self._cleared_range = np.where(self.known, self.range, np.nan)
-        # scenery standing higher over the belt than anything on it can is a far surface
-        # (the floor past the belt, seen at a slant) read near because its phase wrapped
-        # round: what stands in front of it reads farther than it (`seen_range`)
-        with np.errstate(invalid="ignore"):
-            scenery = rays * self.range[..., None]
-            self._wrapped = (
-                self.known & np.isfinite(scenery).all(axis=-1) & ~on_belt_height(scenery, belt)
-            )
-        self._wrapped_belt = belt
 
     def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
         """Over a running belt of known width nothing stands still: where the scenery has come
@@ -343,6 +342,29 @@ def _objects_only(above: B, points: F64, belt: BeltGeometry, level: B) -> B:
         across = (points - centre) @ axis
     inside: B = above & (across >= lo + BAND_MARGIN_M) & (across <= hi - BAND_MARGIN_M)
     return inside
+
+
+def _going_on(where: B, wrapped: B, rng: F64, sigma: F64) -> B:
+    """The parts of `where` (connected in the image) that go on from `wrapped` scenery
+    without a step, a difference in range of three times the noise of that difference or
+    more, between neighbours: more of a far surface whose phase wrapped round, read near
+    (on a slant, the part of it read low enough to stand on the belt), not something
+    standing on the belt."""
+    if not wrapped.any() or not where.any():
+        return np.zeros(where.shape, bool)
+    parts, _ = ndimage.label(where, EIGHT)
+    touching = np.zeros(int(parts.max()) + 1, bool)
+    for a, b in (
+        (np.s_[:, 1:], np.s_[:, :-1]), (np.s_[:, :-1], np.s_[:, 1:]),
+        (np.s_[1:, :], np.s_[:-1, :]), (np.s_[:-1, :], np.s_[1:, :]),
+    ):  # fmt: skip
+        with np.errstate(invalid="ignore"):
+            seam = (parts[a] > 0) & wrapped[b]
+            seam &= np.abs(rng[a] - rng[b]) < 3.0 * np.hypot(sigma[a], sigma[b])
+        touching[parts[a][seam]] = True
+    touching[0] = False
+    going_on: B = touching[parts]
+    return going_on
 
 
 def _belt_band(points: F64) -> tuple[F64, F64, float, float] | None:
