@@ -26,7 +26,7 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
 from tofcut.tracker import background_kernels
 from tofcut.tracker.errors import SegmentError
-from tofcut.tracker.neighbours import EIGHT, sides_reached
+from tofcut.tracker.neighbours import EIGHT, pair_slices, sides_reached
 
 NOISE_SHARE = 0.7
 """Share of the noise its amplitude implies that a pixel's learned noise is at least: three
@@ -354,14 +354,13 @@ def _going_on(where: B, wrapped: B, rng: F64, sigma: F64) -> B:
         return np.zeros(where.shape, bool)
     parts, _ = ndimage.label(where, EIGHT)
     touching = np.zeros(int(parts.max()) + 1, bool)
-    for a, b in (
-        (np.s_[:, 1:], np.s_[:, :-1]), (np.s_[:, :-1], np.s_[:, 1:]),
-        (np.s_[1:, :], np.s_[:-1, :]), (np.s_[:-1, :], np.s_[1:, :]),
-    ):  # fmt: skip
-        with np.errstate(invalid="ignore"):
-            seam = (parts[a] > 0) & wrapped[b]
-            seam &= np.abs(rng[a] - rng[b]) < 3.0 * np.hypot(sigma[a], sigma[b])
-        touching[parts[a][seam]] = True
+    for k in (0, 1):  # east and south neighbours, each way round
+        p, q = pair_slices(where.shape, k)
+        for a, b in ((p, q), (q, p)):
+            with np.errstate(invalid="ignore"):
+                seam = (parts[a] > 0) & wrapped[b]
+                seam &= np.abs(rng[a] - rng[b]) < 3.0 * np.hypot(sigma[a], sigma[b])
+            touching[parts[a][seam]] = True
     touching[0] = False
     going_on: B = touching[parts]
     return going_on
