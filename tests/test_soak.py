@@ -99,7 +99,7 @@ def test_a_short_soak_accounts_for_every_lost_frame(tmp_path, capsys):
     rrd = tmp_path / "soak.rrd"
     code = main(
         ["soak", "--minutes", "0.1", "--fast", "--fault-every", "0.3", "--seed", "2",
-         "--max-growth-mib", "1000", "--save", str(rrd)]
+         "--max-growth-mib", "1000", "--save", str(rrd), "--segment-mb", "2"]
     )  # fmt: skip
     out = capsys.readouterr().out
     assert code == 0, out
@@ -116,4 +116,7 @@ def test_a_short_soak_accounts_for_every_lost_frame(tmp_path, capsys):
     assert re.search(r"latency .*: p50 [\d.]+ ms, p95 [\d.]+ ms, p99 [\d.]+ ms", out)
     assert "growth over the second half" in out
     assert "soak passed" in out
-    assert rrd.stat().st_size > 0
+    segments = sorted(tmp_path.glob("soak-*.rrd"))  # rolled over under faults
+    assert len(segments) > 1
+    assert not rrd.exists()
+    assert all(f.stat().st_size > 0 for f in segments)

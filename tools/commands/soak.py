@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import collections
 import functools
+import math
 import random
 import sys
 import tempfile
@@ -37,7 +38,7 @@ from tofcut.tools.pipeline.conveyor_line import ConveyorLine, add_conveyor_optio
 from tofcut.tools.pipeline.losses import describe_losses, event_level
 from tofcut.tools.pipeline.outputs import ConveyorOutput, RerunOutput
 from tofcut.tools.pipeline.rerun_sink import RerunSink
-from tofcut.tools.pipeline.rerun_target import RerunTarget
+from tofcut.tools.pipeline.rerun_target import MB, RerunTarget
 from tofcut.tools.pipeline.run import EventRelay, LiveFeed, Output, RunSummary, run
 from tofcut.tools.pipeline.run_belt import RunBelt
 from tofcut.tools.pipeline.sources import (
@@ -51,10 +52,15 @@ from tofcut.tracker.tracker import Tracker
 
 MAX_GROWTH_MIB = 10.0
 """Default bound on resident memory growth over the run's second half (MiB): CI's soak grew
-0.3-1.9 MiB in five runs, and 13-24 MiB when rerun's file output still grew (README)."""
+-7.9 to 2.9 MiB in six runs in 16 MB files, 5-11 MiB in one file (docs/faults.md)."""
 SOAK_FPS = 10.0
 """The soak's default frame rate: one the emulator, tracker and rerun keep up with on two
 cores, so that the camera's FIFO never overflows on its own."""
+SOAK_SEGMENT_MB = 16.0
+"""The soak's rerun file is written in segments this size (MB), about 8 s at 10 fps: rerun keeps
+a file's footer manifest in memory until the file closes (up to ~20 KiB a frame in real time,
+bounded by the segment), so in one 256 MB segment a one-minute soak would see that bounded
+growth and not what it is looking for; rolling files over under faults is exercised too."""
 SETTLE_FRAMES = 20
 MIB = 1 << 20
 
@@ -99,6 +105,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         "--no-rerun", action="store_true",
         help="leave the rerun output out (to tell its memory growth from the pipeline's)",
     )  # fmt: skip
+    p.add_argument(
+        "--segment-mb", type=float, default=SOAK_SEGMENT_MB, metavar="MB",
+        help=f"write the rerun recording in files of this size (default {SOAK_SEGMENT_MB:g}, "
+        "so that the memory rerun holds for a file's footer is freed within the run; 0: one file)",
+    )  # fmt: skip
     add_camera_options(p)
     add_conveyor_options(p)
     p.set_defaults(func=soak, fps=SOAK_FPS)
@@ -131,6 +142,8 @@ def conveyor_faults(line: ConveyorLine) -> dict[str, Inject]:
 def soak(args: argparse.Namespace) -> int:
     if args.minutes <= 0:
         raise SourceError("--minutes must be positive")
+    if not (math.isfinite(args.segment_mb) and args.segment_mb >= 0):
+        raise SourceError("--segment-mb must be a size in MB (0: one file)")
     rng = random.Random(args.seed)
     relay = EventRelay()
     opened = open_source(
@@ -183,7 +196,8 @@ def _soak(
         outputs: list[Output] = [] if line is None else [ConveyorOutput(line)]
         sink = None
         if not args.no_rerun:
-            sink = RerunSink(camera.calibration, RerunTarget.save(path), direction, name="soak")
+            target = RerunTarget.save(path, round(args.segment_mb * MB))
+            sink = RerunSink(camera.calibration, target, direction, name="soak")
             handlers.append(functools.partial(_log_event, sink))
             outputs.append(RerunOutput(sink))
         relay.start(handlers)
