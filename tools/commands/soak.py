@@ -98,8 +98,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     )  # fmt: skip
     p.add_argument(
         "--save", type=Path, metavar="FILE.rrd",
-        help="keep the rerun recording here (default: a temporary file, deleted at the end; "
-        "it grows by about 190 KB a frame)",
+        help="keep the rerun recording here, as FILE-0001.rrd, FILE-0002.rrd, ... once it "
+        "outgrows --segment-mb (default: a temporary file, deleted at the end; it grows by "
+        "about 190 KB a frame)",
     )  # fmt: skip
     p.add_argument(
         "--no-rerun", action="store_true",
