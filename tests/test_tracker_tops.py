@@ -65,6 +65,28 @@ def test_touching_boxes_of_different_heights_are_two_pieces(side_by_side):
         assert np.mean(pieces[truth == obj] == owner) > 0.8
 
 
+def test_what_is_no_piece_stays_0_when_a_piece_holds_the_first_pixel():
+    # an object at the frame's top left corner: numbering by first appearance must not
+    # give the background a piece's number (it once made all the scenery one piece)
+    source = _pair(0.12, 0.18, True)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    rows, cols = np.nonzero((truth.labels > 0) & frame.valid)
+    k = np.argmin(rows + cols)  # the boxes' pixel nearest the top left: the window starts there
+    v, u = int(rows[k]), int(cols[k])
+    window = (slice(v, None), slice(u, None))
+    body = (truth.labels[window] > 0) & frame.valid[window]
+    xyz = np.ascontiguousarray(frame.xyz[window])
+    noise = range_noise(frame, 0.004)[window]
+    belt = source.belt.geometry
+    up = facing_up(body, xyz, noise, belt)
+    assert up is not None
+    assert body[0, 0]
+    pieces = split_by_tops(components_kernels.label_pieces(body), up, xyz, noise, belt, 30)
+    assert pieces.max() == 2
+    np.testing.assert_array_equal(pieces > 0, body)
+    assert pieces[0, 0] == 1
+
+
 def test_flush_boxes_of_one_height_stay_one_piece():
     # range cannot tell them apart: no guess
     pieces, _ = _split(_pair(0.15, 0.15, True))

@@ -112,11 +112,13 @@ def split_by_tops(
         relabel[own] = label + 1 + np.arange(own.size)
         label += own.size
         out[region] = relabel[tops[rows, cols][region]]
-    # number the pieces 1..m in order of first appearance, as `label_pieces` does
-    _, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
+    # number the pieces 1..m in order of first appearance, as `label_pieces` does; what is
+    # no piece stays 0 wherever it first appears (a piece may hold the frame's first pixel)
+    ids, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
+    first[ids == 0] = -1
     rank = np.empty(first.size, np.int64)
     rank[np.argsort(first)] = np.arange(first.size)
-    if out.min() > 0:
+    if ids[0] > 0:
         rank += 1
     return rank[inverse].reshape(pieces.shape).astype(np.int32)
 
