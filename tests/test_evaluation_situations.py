@@ -82,3 +82,17 @@ def test_a_family_lines_touching_pairs_are_its_contacts_of_different_heights():
     touching = [c for c in line.contacts() if c.kind != "near"]
     assert len(pairs) == sum(abs(height[c.a] - height[c.b]) >= 0.04 for c in touching)
     assert touching_pairs(Plan("conveyor", (7,), ("tofcut",), work=None), 7) == ()  # type: ignore[arg-type]
+
+
+def test_a_pair_that_flickers_in_and_out_of_view_passes_once():
+    # one of the two partly hidden, showing about MIN_PIXELS: each break of a frame or two
+    # is not a new passage (one line counted one pass 37 times)
+    truths = _truths(40, {1: A, 2: B})
+    for k in range(3, 40, 4):
+        truths[k].labels[truths[k].labels == 2] = 0
+    masks = _masks(40, {3: (A, 2), 4: (B, 2)})
+    seen = situations(truths, masks, [("box-1", "box-2")])
+    assert (seen.touching, seen.touching_apart) == (1, 1)
+    apart = [_truths(10, {1: A, 2: B}), _truths(15, {1: A}), _truths(10, {1: A, 2: B})]
+    again = situations([t for part in apart for t in part], _masks(35, {}), [("box-1", "box-2")])
+    assert again.touching == 2  # out of view for 15 frames: it came round again

@@ -8,7 +8,8 @@ most one can). Counted:
   by frame `FIRST_FRAMES`, and from then on by that one track in every frame in which it shows
   at least half of its largest view, until it leaves (its first visit);
 - **touching**: each time a pair of objects that touch (side by side or nose to tail) and
-  whose heights differ by `MIN_STEP_M` or more are in view together, `APART_FRAMES` frames
+  whose heights differ by `MIN_STEP_M` or more are in view together (a passage: breaks of
+  fewer than `BRIDGE_FRAMES` frames do not end it), `APART_FRAMES` frames
   after both have come wholly into view (each showing 90% of its largest view of that
   passage), each is held by a track of its own.
 """
@@ -28,6 +29,8 @@ APART_FRAMES = 5
 MIN_STEP_M = 0.04
 WHOLE = 0.9
 """An object is wholly in view when it shows this share of its largest view of a passage."""
+BRIDGE_FRAMES = 10
+"""Frames out of view that do not end a pair's passage."""
 
 
 @dataclass(frozen=True)
@@ -104,10 +107,17 @@ def from_start(pixels: np.ndarray, held: np.ndarray) -> bool:
 
 
 def passages(a: np.ndarray, b: np.ndarray) -> list[tuple[int, int]]:
-    """The runs of frames [start, stop) in which both objects are in view."""
+    """The runs of frames [start, stop) in which both objects are in view, a break of fewer
+    than `BRIDGE_FRAMES` frames bridged: one partly hidden behind the other, showing about
+    `MIN_PIXELS`, is one passage, not one each time it crosses that."""
     both = np.concatenate([[False], (a >= MIN_PIXELS) & (b >= MIN_PIXELS), [False]])
     edges = np.nonzero(np.diff(both.astype(np.int8)))[0]
-    return list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+    runs: list[tuple[int, int]] = []
+    for start, stop in zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True):
+        if runs and start - runs[-1][1] < BRIDGE_FRAMES:
+            start = runs.pop()[0]
+        runs.append((start, stop))
+    return runs
 
 
 def kept_apart(pa: np.ndarray, pb: np.ndarray, ha: np.ndarray, hb: np.ndarray) -> list[bool]:
