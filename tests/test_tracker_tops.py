@@ -11,8 +11,9 @@ from tofcut.driver.belt import BeltGeometry
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
-from tofcut.tracker import components_kernels, tops_kernels
+from tofcut.tracker import components_kernels, measure_kernels, tops_kernels
 from tofcut.tracker.noise import range_noise
+from tofcut.tracker.roster import _box_of, _on_level
 from tofcut.tracker.tops import (
     BASELINE,
     MAX_SLOPE,
@@ -91,6 +92,30 @@ def test_flush_boxes_of_one_height_stay_one_piece():
     # range cannot tell them apart: no guess
     pieces, _ = _split(_pair(0.15, 0.15, True))
     assert pieces.max() == 1
+
+
+@pytest.mark.parametrize(("side_by_side", "second_h", "goes_on"), [
+    (False, 0.18, False),  # nose to tail, 6 cm taller: another object
+    (True, 0.06, False),  # side by side, 6 cm lower: another object
+    (False, 0.12, True),  # one height, flush: one surface, as range shows it
+])  # fmt: skip
+def test_what_stands_beside_a_track_goes_on_from_it_only_with_its_top_at_one_height(
+    side_by_side, second_h, goes_on
+):
+    # the track holds box 1; box 2, pressed against it, meets it with no step (its side face
+    # runs into the other's top), so only the tops' heights tell it is not more of box 1
+    source = _pair(0.12, second_h, side_by_side)
+    frame, truth = decode(source, scene_exposure(source, 0.0))
+    held = (truth.labels == 1) & frame.valid
+    box = _box_of(held)
+    pieces = components_kernels.label_pieces((truth.labels == 2) & frame.valid)
+    assert pieces.max() == 1
+    belt = source.belt.geometry
+    kept = _on_level(
+        frame, held[box], box, pieces, [1], measure_kernels.piece_boxes(pieces),
+        range_noise(frame, 0.004), belt,
+    )  # fmt: skip
+    assert kept == ([1] if goes_on else [])
 
 
 def test_in_loud_noise_the_tops_are_told_over_a_longer_span():

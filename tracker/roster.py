@@ -13,6 +13,7 @@ anew, is no object. Targets the user gives are started from their seeds.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -32,7 +33,15 @@ from tofcut.tracker.live_track import SHAPE_FLOOR_M, Box, LiveTrack, shape_of
 from tofcut.tracker.neighbours import EIGHT, sides_reached
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
-from tofcut.tracker.tops import facing_up, level, meetings, seamless, sides_of
+from tofcut.tracker.tops import (
+    MIN_TOP,
+    MIN_TOP_STEP_M,
+    facing_up,
+    level,
+    meetings,
+    seamless,
+    sides_of,
+)
 
 MIN_PIECE = 5
 """Pieces smaller than this are noise, not more of an object coming into view."""
@@ -203,7 +212,9 @@ class Roster:
                     # did not reach
                     if piece_boxes is None:
                         piece_boxes = measure_kernels.piece_boxes(pieces)
-                    beside = self._continuing(frame, mask, box, pieces, touching[t.id], piece_boxes)
+                    beside = self._continuing(
+                        frame, mask, box, pieces, touching[t.id], piece_boxes, noise, belt
+                    )
                     if beside.size:
                         # all of it lies within its box and those of the pieces it takes,
                         # which are whole (none was taken before): its box is theirs
@@ -386,11 +397,15 @@ class Roster:
         pieces: I32,
         near: I32,
         piece_boxes: I64,
+        noise: F64,
+        belt: BeltGeometry | None,
     ) -> I32:
         """Which pieces beside a track's `mask` (within its `box`) are more of the same
         object (pieces smaller than MIN_PIECE are noise): for rigid targets, those that go on
-        from the mask's surface without a 3D step (`joined_m`); for targets that bend, all (a
-        limb). `piece_boxes` are the pieces' boxes (`measure_kernels.piece_boxes`)."""
+        from the mask's surface without a 3D step (`joined_m`) and, on a known belt, with their
+        top at the height of the mask's (`_on_level`); for targets that bend, all (a limb).
+        `piece_boxes` are the pieces' boxes (`measure_kernels.piece_boxes`), `noise` each
+        pixel's range noise."""
         ids = near.astype(np.int64)
         sizes, meet, joined = measure_kernels.seams(
             mask, box[0].start, box[1].start, pieces, ids, piece_boxes[ids - 1], frame.xyz,
@@ -404,6 +419,8 @@ class Roster:
             if self.params.rigid and not (meet[k] and joined[k] / meet[k] >= 0.5):
                 continue
             keep.append(r)
+        if keep and self.params.rigid and belt is not None:
+            keep = _on_level(frame, mask, box, pieces, keep, piece_boxes, noise, belt)
         return np.array(keep, np.int32)
 
     def _detect(
@@ -468,6 +485,46 @@ def _beside(points: F64, belt: BeltGeometry) -> bool:
     """Whether points lie beside the belt, not on it: fewer than `OVER_SHARE` of them over
     its width (never where the width is not known)."""
     return belt.width_m is not None and float(belt.over_belt(points).mean()) < OVER_SHARE
+
+
+def _on_level(
+    frame: Frame,
+    mask: B,
+    box: Box,
+    pieces: I32,
+    keep: list[int],
+    piece_boxes: I64,
+    noise: F64,
+    belt: BeltGeometry,
+) -> list[int]:
+    """Of the pieces `keep` that go on from a track's `mask` (within its `box`), those whose
+    top is not at a height apart from the mask's (`MIN_TOP_STEP_M`, or three times the noise
+    of the two mean heights): an object pressed against another meets it with no step, the
+    one's side face running into the other's top, but their tops stand apart."""
+    win = _union(box, piece_boxes[np.array(keep) - 1])
+    held = _placed(mask, box, win)
+    cut = pieces[win]
+    # contiguous, as the compiled kernels take them
+    xyz, spread = np.ascontiguousarray(frame.xyz[win]), np.ascontiguousarray(noise[win])
+    up = facing_up(held | np.isin(cut, keep), xyz, spread, belt)
+    if up is None:
+        return keep
+    own = held & up
+    if np.count_nonzero(own) < MIN_TOP:
+        return keep
+    height = float(np.median(belt.height(xyz[own])))
+    sigma = float(np.sqrt(np.mean(spread[own] ** 2) / np.count_nonzero(own)))
+    out = []
+    for r in keep:
+        top = (cut == r) & up
+        n = np.count_nonzero(top)
+        if n >= MIN_TOP:
+            s = float(np.sqrt(np.mean(spread[top] ** 2) / n))
+            step = abs(float(np.median(belt.height(xyz[top]))) - height)
+            if step >= max(MIN_TOP_STEP_M, 3.0 * math.hypot(sigma, s)):
+                continue
+        out.append(r)
+    return out
 
 
 def _solid(piece: B, min_pixels: int) -> bool:
