@@ -412,6 +412,7 @@ class Roster:
             self.params.joined_m,
         )  # fmt: skip
         keep = []
+        most = 0  # the most pixels of a piece kept
         for k, r in enumerate(near.tolist()):
             if sizes[k] < MIN_PIECE:
                 continue
@@ -419,7 +420,9 @@ class Roster:
             if self.params.rigid and not (meet[k] and joined[k] / meet[k] >= 0.5):
                 continue
             keep.append(r)
-        if keep and self.params.rigid and belt is not None:
+            most = max(most, int(sizes[k]))
+        # a piece of fewer than `MIN_TOP` pixels shows no top (most of what comes into view)
+        if most >= MIN_TOP and self.params.rigid and belt is not None:
             keep = _on_level(frame, mask, box, pieces, keep, piece_boxes, noise, belt)
         return np.array(keep, np.int32)
 
@@ -501,12 +504,16 @@ def _on_level(
     top is not at a height apart from the mask's (`MIN_TOP_STEP_M`, or three times the noise
     of the two mean heights): an object pressed against another meets it with no step, the
     one's side face running into the other's top, but their tops stand apart."""
+    if np.count_nonzero(mask) < MIN_TOP:
+        return keep
     win = _union(box, piece_boxes[np.array(keep) - 1])
     held = _placed(mask, box, win)
     cut = pieces[win]
+    kept = np.zeros(len(piece_boxes) + 1, bool)  # by piece
+    kept[keep] = True
     # contiguous, as the compiled kernels take them
     xyz, spread = np.ascontiguousarray(frame.xyz[win]), np.ascontiguousarray(noise[win])
-    up = facing_up(held | np.isin(cut, keep), xyz, spread, belt)
+    up = facing_up(held | kept[cut], xyz, spread, belt)
     if up is None:
         return keep
     own = held & up
