@@ -1,14 +1,15 @@
 """Measuring and creating tracks: the live tracks, and what each frame's labels do to them.
 
 Each frame, every track is measured from its mask (`LiveTrack.see`), grown by what stands
-out right beside it and goes on from its surface (an object coming into view), or coasts
-unseen (`LiveTrack.coast`). What stands out and no track can claim, two frames running,
-becomes a new track. Rigid objects on a belt: a track holding two touching surfaces (a step
-apart, or two tops at different heights: `tofcut.tracker.tops`) for a few frames has them
-dealt out again (two objects that came into view as one), two tracks that meet at a convex
-edge with no step are faces of one object and become one, and a track that stays put while
-the belt runs becomes scenery; what lies beside a belt of known width, or flat on a belt laid
-anew, is no object. Targets the user gives are started from their seeds.
+out right beside it and goes on from its surface, any top it shows at the track's height (an
+object coming into view), or coasts unseen (`LiveTrack.coast`). What stands out and no track
+can claim, two frames running, becomes a new track. Rigid objects on a belt: a track holding
+two touching surfaces (a step apart, or two tops at different heights:
+`tofcut.tracker.tops`) for a few frames has them dealt out again (two objects that came into
+view as one), two tracks that meet at a convex edge with no step are faces of one object and
+become one, and a track that stays put while the belt runs becomes scenery; what lies beside
+a belt of known width, or flat on a belt laid anew, is no object. Targets the user gives are
+started from their seeds.
 """
 
 from __future__ import annotations
