@@ -14,7 +14,6 @@ started from their seeds.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -36,8 +35,8 @@ from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.pieces import Pieces
 from tofcut.tracker.tops import (
     MIN_TOP,
-    MIN_TOP_STEP_M,
     facing_up,
+    heights_apart,
     level,
     meetings,
     seamless,
@@ -502,9 +501,9 @@ def _on_level(
     belt: BeltGeometry,
 ) -> list[int]:
     """Of the pieces `keep` that go on from a track's `mask` (within its `box`), those whose
-    top is not at a height apart from the mask's (`MIN_TOP_STEP_M`, or three times the noise
-    of the two mean heights): an object pressed against another meets it with no step, the
-    one's side face running into the other's top, but their tops stand apart."""
+    top is not at a height apart from the mask's (`tops.heights_apart`): an object pressed
+    against another meets it with no step, the one's side face running into the other's top,
+    but their tops stand apart."""
     if np.count_nonzero(mask) < MIN_TOP:
         return keep
     win = _union(box, piece_boxes[np.array(keep) - 1])
@@ -517,22 +516,24 @@ def _on_level(
     up = facing_up(held | kept[cut], xyz, spread, belt)
     if up is None:
         return keep
-    own = held & up
-    if np.count_nonzero(own) < MIN_TOP:
+    own = _top(held & up, xyz, spread, belt)
+    if own is None:
         return keep
-    height = float(np.median(belt.height(xyz[own])))
-    sigma = float(np.sqrt(np.mean(spread[own] ** 2) / np.count_nonzero(own)))
     out = []
     for r in keep:
-        top = (cut == r) & up
-        n = np.count_nonzero(top)
-        if n >= MIN_TOP:
-            s = float(np.sqrt(np.mean(spread[top] ** 2) / n))
-            step = abs(float(np.median(belt.height(xyz[top]))) - height)
-            if step >= max(MIN_TOP_STEP_M, 3.0 * math.hypot(sigma, s)):
-                continue
-        out.append(r)
+        top = _top((cut == r) & up, xyz, spread, belt)
+        if top is None or not heights_apart(*own, *top):
+            out.append(r)
     return out
+
+
+def _top(top: B, xyz: F64, noise: F64, belt: BeltGeometry) -> tuple[float, float] | None:
+    """The median height of a top's pixels and the noise of their mean height, if it has
+    `MIN_TOP` of them."""
+    n = np.count_nonzero(top)
+    if n < MIN_TOP:
+        return None
+    return float(np.median(belt.height(xyz[top]))), float(np.sqrt(np.mean(noise[top] ** 2) / n))
 
 
 def _solid(piece: B, min_pixels: int) -> bool:

@@ -96,10 +96,7 @@ def split_by_tops(
     for piece in np.nonzero(np.bincount(home[big]) >= 2)[0].tolist():  # two big tops or more
         mine = np.nonzero(big & (home == piece))[0]
         h, s = height[mine], spread[mine]
-        apart = np.abs(h[:, None] - h[None, :]) >= np.maximum(
-            MIN_TOP_STEP_M, 3.0 * np.hypot(s[:, None], s[None, :])
-        )
-        if apart.any():
+        if heights_apart(h[:, None], s[:, None], h[None, :], s[None, :]).any():
             parted.append((piece, mine))
     if not parted:
         return pieces
@@ -121,6 +118,13 @@ def split_by_tops(
     if ids[0] > 0:
         rank += 1
     return rank[inverse].reshape(pieces.shape).astype(np.int32)
+
+
+def heights_apart(h1: F64 | float, s1: F64 | float, h2: F64 | float, s2: F64 | float) -> B:
+    """Whether tops at heights `h1` and `h2` (the noise of each height: `s1`, `s2`) are at
+    two heights: `MIN_TOP_STEP_M` apart, or three times the noise of their difference where
+    that is more (elementwise)."""
+    return np.asarray(np.abs(h1 - h2) >= np.maximum(MIN_TOP_STEP_M, 3.0 * np.hypot(s1, s2)))
 
 
 def one_object(
