@@ -214,6 +214,14 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
             x["runs"][a["tracker"]]["situations"]["from_start"] for x in doc["lines"]
         )
     assert "## Two situations" in md
+    # every object-frame counted once, by how it was held
+    for a in doc["aggregate"]:
+        counted = sum(a["holding"].values())
+        assert counted > 0
+        assert counted == sum(
+            sum(x["runs"][a["tracker"]]["holding"].values()) for x in doc["lines"]
+        )
+    assert "## Where the objects are lost" in md
     assert md in printed
     # HOTA, DetA and AssA in both tables, the baseline's too, as the JSON has them
     lines = md.splitlines()

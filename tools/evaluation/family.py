@@ -47,6 +47,7 @@ from tofcut.sim.truth import FrameTruth, load_truth, truth_path
 from tofcut.tools.batch.pool import BatchError, Pool, add_batch_options
 from tofcut.tools.batch.steps import StepFailed, cli, describe, run_step
 from tofcut.tools.batch.tasks import Outcome, failure_sections, run_tasks
+from tofcut.tools.evaluation.holding import Holding, holding
 from tofcut.tools.evaluation.line_noise import BANDS, band, belt_noise
 from tofcut.tools.evaluation.scoring import GATE_M, MIN_IOU, MIN_PIXELS, Scores, evaluate, read_run
 from tofcut.tools.evaluation.situations import MIN_STEP_M, Situations, situations
@@ -177,12 +178,15 @@ class TrackerRun:
     """Wall time of the tracker's process."""
     situations: Situations | None = None
     """How it did from the first frame and on touching pairs (`tools.evaluation.situations`)."""
+    holding: Holding | None = None
+    """How each object-frame was held (`tools.evaluation.holding`)."""
 
     def to_json(self) -> dict[str, Any]:
-        seen = self.situations
+        seen, held = self.situations, self.holding
         return {"tracker": self.tracker, "error": self.error, "seconds": round(self.seconds, 2),
                 **({"scores": self.scores.to_json()} if self.scores else {}),
-                **({"situations": seen.to_json()} if seen else {})}  # fmt: skip
+                **({"situations": seen.to_json()} if seen else {}),
+                **({"holding": held.to_json()} if held else {})}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -317,7 +321,8 @@ def run_tracker(
                           plan.min_pixels, plan.min_iou)  # fmt: skip
         masks_in_order = [files.masks.get(t.sequence) for t in files.truths]
         seen = situations(files.truths, masks_in_order, touching)
-        return TrackerRun(tracker, scores, seconds=elapsed, situations=seen)
+        held = holding(files.truths, masks_in_order)
+        return TrackerRun(tracker, scores, seconds=elapsed, situations=seen, holding=held)
     except Exception as exc:
         return TrackerRun(tracker, None, describe(exc), time.perf_counter() - start)
 
@@ -424,14 +429,20 @@ class Aggregate:
     mean_mask_iou: float | None
     situations: Situations | None = None
     """Summed over the lines."""
+    holding: Holding | None = None
+    """Summed over the lines."""
 
     @classmethod
     def of_runs(cls, tracker: str, results: Sequence[LineResult]) -> Aggregate:
         runs = [run for r in results if (run := r.run(tracker)) and run.scores]
         seen = [run.situations for run in runs if run.situations]
-        total = sum(seen[1:], seen[0]) if seen else None
+        held = [run.holding for run in runs if run.holding]
         scores = [run.scores for run in runs if run.scores]
-        return replace(cls.of_scores(tracker, scores, len(results)), situations=total)
+        return replace(
+            cls.of_scores(tracker, scores, len(results)),
+            situations=sum(seen[1:], seen[0]) if seen else None,
+            holding=sum(held, Holding()) if held else None,
+        )
 
     @classmethod
     def of_scores(cls, tracker: str, scores: Sequence[Scores], of: int) -> Aggregate:
@@ -452,6 +463,7 @@ class Aggregate:
             "by_iou": self.by_iou.to_json() if self.by_iou else None,
             "mean_mask_iou": self.mean_mask_iou,
             "situations": self.situations.to_json() if self.situations else None,
+            "holding": self.holding.to_json() if self.holding else None,
         }  # fmt: skip
 
 
@@ -539,6 +551,21 @@ def situations_section(aggregates: Sequence[Aggregate]) -> list[str]:
             "in view (see `tofcut.tools.evaluation.situations`)."]  # fmt: skip
 
 
+def holding_section(aggregates: Sequence[Aggregate]) -> list[str]:
+    """The object-frames by how they were held (`tools.evaluation.holding`), per tracker."""
+    rows = [["tracker", "object-frames", "held", "merged", "partly held", "missed"]]
+    rows += [[a.tracker, str(h.total)] + [f"{100 * n / h.total:.1f}%" for n in
+              (h.held, h.merged, h.partly, h.missed)]
+             for a in aggregates if (h := a.holding) and h.total]  # fmt: skip
+    if len(rows) == 1:
+        return []
+    return ["", "## Where the objects are lost", "", *table(rows), "",
+            "Each frame of each object in view, once. Held: a track's mask has an IoU >= 0.5 "
+            "with it; merged: the track holding most of it has 30% or more of its mask on "
+            "other objects; partly held: some of it is in a track's mask, but not enough; "
+            "missed: none of it is (see `tofcut.tools.evaluation.holding`)."]  # fmt: skip
+
+
 def noise_section(trackers: Sequence[str], results: Sequence[LineResult]) -> list[str]:
     """The family's scores split by how loud each line's belt is (`line_noise`)."""
     head = ["belt's range noise", "lines"]
@@ -595,6 +622,7 @@ def markdown(plan: Plan, results: Sequence[LineResult], aggregates: Sequence[Agg
     out += table(fam)
     out += ["", "Each cell: by centroid / by mask IoU; ID switches summed over the lines."]
     out += situations_section(aggregates)
+    out += holding_section(aggregates)
     out += noise_section(trackers, results)
     out += failure_sections(
         [(f"seed {r.seed} ({r.source})", "; ".join(r.errors)) for r in results if r.errors],
