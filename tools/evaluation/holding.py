@@ -14,7 +14,7 @@ touching objects, partial holds the cut's edges, misses the finding of objects.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,28 +52,55 @@ class Holding:
                 "missed": self.missed}  # fmt: skip
 
 
+@dataclass(frozen=True)
+class Hold:
+    """One object in one frame, and the track that holds the most of it."""
+
+    obj: int
+    pixels: int
+    """Its visible pixels."""
+    track: int
+    """The track whose mask holds the most of them (ties: the lowest id); 0: none holds any."""
+    iou: float
+    """That track's mask's IoU with it (0 where none)."""
+    elsewhere: float
+    """The share of that track's mask on other objects (0 where none)."""
+
+
+def holds(truth: FrameTruth, hyp: Labels | None) -> Iterator[Hold]:
+    """Each object in view in a frame (`truth`) and the track of the label image `hyp` (None:
+    no masks for that frame) that holds the most of it."""
+    if hyp is None:
+        hyp = np.zeros_like(truth.labels)
+    shared = _overlaps(truth.labels, hyp)
+    areas_t, areas_h = shared.sum(axis=1), shared.sum(axis=0)
+    for obj in truth.objects:
+        if obj.id >= shared.shape[0] or not areas_t[obj.id]:
+            continue
+        row = shared[obj.id]
+        area = int(areas_t[obj.id])
+        if not row[1:].any():
+            yield Hold(obj.id, area, 0, 0.0, 0.0)
+            continue
+        best = int(np.argmax(row[1:])) + 1
+        iou = row[best] / (area + areas_h[best] - row[best])
+        others = areas_h[best] - shared[0, best] - row[best]
+        yield Hold(obj.id, area, best, float(iou), float(others / areas_h[best]))
+
+
 def holding(truths: Sequence[FrameTruth], masks: Sequence[Labels | None]) -> Holding:
     """How each object-frame of a run was held, from each frame's truth and label image
     (None: no masks for that frame, so every object in it is missed)."""
     counts = {"held": 0, "merged": 0, "partly": 0, "missed": 0}
     for truth, hyp in zip(truths, masks, strict=True):
-        if hyp is None:
-            hyp = np.zeros_like(truth.labels)
-        shared = _overlaps(truth.labels, hyp)
-        areas_t, areas_h = shared.sum(axis=1), shared.sum(axis=0)
-        for obj in truth.objects:
-            if obj.id >= shared.shape[0] or areas_t[obj.id] < MIN_PIXELS:
+        for h in holds(truth, hyp):
+            if h.pixels < MIN_PIXELS:
                 continue
-            row = shared[obj.id]
-            if not row[1:].any():
+            if not h.track:
                 counts["missed"] += 1
-                continue
-            best = int(np.argmax(row[1:])) + 1
-            iou = row[best] / (areas_t[obj.id] + areas_h[best] - row[best])
-            on_others = areas_h[best] - shared[0, best] - row[best]
-            if iou >= MIN_IOU:
+            elif h.iou >= MIN_IOU:
                 counts["held"] += 1
-            elif on_others >= MERGED_SHARE * areas_h[best]:
+            elif h.elsewhere >= MERGED_SHARE:
                 counts["merged"] += 1
             else:
                 counts["partly"] += 1

@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
-from tofcut.tools.evaluation.scoring import MIN_IOU, MIN_PIXELS, Labels, _overlaps
+from tofcut.tools.evaluation.holding import holds
+from tofcut.tools.evaluation.scoring import MIN_IOU, MIN_PIXELS, Labels
 
 FIRST_FRAMES = 10
 APART_FRAMES = 5
@@ -74,21 +75,10 @@ def holders(truths: Sequence[FrameTruth], masks: Sequence[Labels | None]) -> tup
     pixels = {i: np.zeros(n, np.int64) for i in ids}
     held = {i: np.zeros(n, np.int64) for i in ids}
     for k, (truth, hyp) in enumerate(zip(truths, masks, strict=True)):
-        if hyp is None:
-            hyp = np.zeros_like(truth.labels)
-        shared = _overlaps(truth.labels, hyp)
-        areas_t, areas_h = shared.sum(axis=1), shared.sum(axis=0)
-        for obj in truth.objects:
-            if obj.id >= shared.shape[0] or not areas_t[obj.id]:
-                continue
-            row = shared[obj.id]
-            pixels[obj.id][k] = areas_t[obj.id]
-            if not row[1:].any():
-                continue
-            best = int(np.argmax(row[1:])) + 1
-            iou = row[best] / (areas_t[obj.id] + areas_h[best] - row[best])
-            if iou >= MIN_IOU:
-                held[obj.id][k] = best
+        for h in holds(truth, hyp):
+            pixels[h.obj][k] = h.pixels
+            if h.track and h.iou >= MIN_IOU:
+                held[h.obj][k] = h.track
     return pixels, held
 
 
