@@ -41,6 +41,7 @@ from tofcut.tracker.tops import (
     meetings,
     seamless,
     sides_of,
+    top_height,
 )
 
 MIN_PIECE = 5
@@ -528,12 +529,13 @@ def _on_level(
 
 
 def _top(top: B, xyz: F64, noise: F64, belt: BeltGeometry) -> tuple[float, float] | None:
-    """The median height of a top's pixels and the noise of their mean height, if it has
-    `MIN_TOP` of them."""
-    n = np.count_nonzero(top)
-    if n < MIN_TOP:
+    """The height of a top (`tops.top_height`) and the noise of its pixels' mean height, if
+    it has `MIN_TOP` pixels."""
+    height = top_height(top, xyz, belt)
+    if height is None:
         return None
-    return float(np.median(belt.height(xyz[top]))), float(np.sqrt(np.mean(noise[top] ** 2) / n))
+    spread = noise[top]
+    return height, float(np.sqrt(np.mean(spread**2) / spread.size))
 
 
 def _solid(piece: B, min_pixels: int) -> bool:

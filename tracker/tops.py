@@ -193,15 +193,17 @@ def level(
         return pairs
     out = []
     for x, y in pairs:
-        hx, hy = _top_height(labels == x, up, xyz, belt), _top_height(labels == y, up, xyz, belt)
+        hx, hy = (
+            top_height((labels == x) & up, xyz, belt),
+            top_height((labels == y) & up, xyz, belt),
+        )
         if hx is None or hy is None or not abs(hx - hy) >= MIN_TOP_STEP_M:
             out.append((x, y))
     return out
 
 
-def _top_height(mask: B, up: B, xyz: F64, belt: BeltGeometry) -> float | None:
-    """The median height of a mask's pixels facing up, if it has `MIN_TOP` of them."""
-    top = mask & up
+def top_height(top: B, xyz: F64, belt: BeltGeometry) -> float | None:
+    """The median height of a top's pixels (facing up), if it has `MIN_TOP` of them."""
     if np.count_nonzero(top) < MIN_TOP:
         return None
     return float(np.median(belt.height(xyz[top])))

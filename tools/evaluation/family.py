@@ -441,7 +441,7 @@ class Aggregate:
         return replace(
             cls.of_scores(tracker, scores, len(results)),
             situations=sum(seen[1:], seen[0]) if seen else None,
-            holding=sum(held, Holding()) if held else None,
+            holding=sum(held[1:], held[0]) if held else None,
         )
 
     @classmethod
