@@ -4,11 +4,11 @@ Seen from above and to one side, a tall box's side face runs on into the top of 
 pressed against it with no step in range, so a cut at 3D steps keeps the two as one piece.
 Their tops do not touch: between them stands the side face, which does not face up. A piece
 holding two tops of its own at different heights is two objects; its pixels are dealt out to
-the tops (`split_by_tops`). The other way round, two tracks that meet with no step and hold no
-two tops at different heights are faces of one object (`one_object`), and so are two where one
-lies over the other's footprint and rises to its top (`sides_of`): a side seen at a slant,
-across a step that foreshortening makes. Range cannot part two objects of one height pressed
-flush together: they stay one.
+the tops, each to the nearest not below it (`split_by_tops`). The other way round, two tracks
+that meet with no step and hold no two tops at different heights are faces of one object
+(`one_object`), and so are two where one lies over the other's footprint and rises to its
+top (`sides_of`): a side seen at a slant, across a step that foreshortening makes. Range
+cannot part two objects of one height pressed flush together: they stay one.
 """
 
 from __future__ import annotations
@@ -77,9 +77,9 @@ def split_by_tops(
 ) -> I32:
     """`pieces` (labelled 1..n), where a piece holds two tops or more of `min_pixels`
     (connected parts of `up`) at heights apart by `MIN_TOP_STEP_M` or more, dealt out to
-    those tops: each pixel to the nearest in the image (a side face to the top it rises to
-    or falls from). Pieces with one top, or tops at one height (one object's top broken up
-    by noise), are kept whole."""
+    those tops: each pixel to the nearest in the image not below it (a side face to the top
+    it rises to or falls from, `_nearest_under`). Pieces with one top, or tops at one height
+    (one object's top broken up by noise), are kept whole."""
     tops = components_kernels.label_pieces(up & (pieces > 0))
     n = int(tops.max())
     if n < 2:
@@ -104,11 +104,8 @@ def split_by_tops(
     label = int(pieces.max())
     for piece, own in parted:
         region = pieces == piece
-        _, (rows, cols) = ndimage.distance_transform_edt(~np.isin(tops, own), return_indices=True)
-        relabel = np.zeros(n + 1, np.int64)
-        relabel[own] = label + 1 + np.arange(own.size)
+        out[region] = label + 1 + _nearest_under(region, tops, own, height[own], xyz, noise, belt)
         label += own.size
-        out[region] = relabel[tops[rows, cols][region]]
     # number the pieces 1..m in order of first appearance, as `label_pieces` does; what is
     # no piece stays 0 wherever it first appears (a piece may hold the frame's first pixel)
     ids, first, inverse = np.unique(out.ravel(), return_index=True, return_inverse=True)
@@ -118,6 +115,27 @@ def split_by_tops(
     if ids[0] > 0:
         rank += 1
     return rank[inverse].reshape(pieces.shape).astype(np.int32)
+
+
+def _nearest_under(
+    region: B, tops: I32, own: I64, heights: F64, xyz: F64, noise: F64, belt: BeltGeometry
+) -> I64:
+    """For each pixel of `region`, which of the tops `own` (their labels in `tops`, at
+    `heights`) it goes to (0, 1, ...): the nearest in the image of those not below it. No
+    pixel of an object stands higher than its top, so the face of a tall box rising from a
+    low one's top goes to the tall one, however near the low top it is; a pixel above every
+    top (within three times its noise, or `MIN_TOP_STEP_M`) goes to the nearest."""
+    rows, cols = np.nonzero(region)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    box = tops[r0:r1, c0:c1]
+    far = np.stack([
+        ndimage.distance_transform_edt(box != k)[rows - r0, cols - c0] for k in own.tolist()
+    ])  # fmt: skip
+    h = belt.height(xyz[rows, cols])
+    slack = np.maximum(MIN_TOP_STEP_M, 3.0 * noise[rows, cols])
+    below = heights[:, None] >= h[None, :] - slack[None, :]
+    nearest: I64 = np.where(below.any(axis=0), np.where(below, far, np.inf), far).argmin(axis=0)
+    return nearest
 
 
 def heights_apart(h1: F64 | float, s1: F64 | float, h2: F64 | float, s2: F64 | float) -> B:
