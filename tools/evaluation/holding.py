@@ -20,14 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
-from tofcut.tools.evaluation.scoring import MIN_IOU, MIN_PIXELS, Labels, _overlaps
+from tofcut.tools.evaluation.counts import Counts
+from tofcut.tools.evaluation.scoring import MIN_IOU, MIN_PIXELS, Labels, overlaps
 
 MERGED_SHARE = 0.3
 """Share of a track's mask on other objects that makes it a merge, not a loose edge."""
 
 
 @dataclass(frozen=True)
-class Holding:
+class Holding(Counts):
     """Object-frames counted by how they were held (see the module's docstring)."""
 
     held: int = 0
@@ -38,18 +39,6 @@ class Holding:
     @property
     def total(self) -> int:
         return self.held + self.merged + self.partly + self.missed
-
-    def __add__(self, other: Holding) -> Holding:
-        return Holding(
-            self.held + other.held,
-            self.merged + other.merged,
-            self.partly + other.partly,
-            self.missed + other.missed,
-        )
-
-    def to_json(self) -> dict[str, int]:
-        return {"held": self.held, "merged": self.merged, "partly": self.partly,
-                "missed": self.missed}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -72,7 +61,7 @@ def holds(truth: FrameTruth, hyp: Labels | None) -> Iterator[Hold]:
     no masks for that frame) that holds the most of it."""
     if hyp is None:
         hyp = np.zeros_like(truth.labels)
-    shared = _overlaps(truth.labels, hyp)
+    shared = overlaps(truth.labels, hyp)
     areas_t, areas_h = shared.sum(axis=1), shared.sum(axis=0)
     for obj in truth.objects:
         if obj.id >= shared.shape[0] or not areas_t[obj.id]:

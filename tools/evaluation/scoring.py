@@ -170,7 +170,7 @@ def _frames(
         yield frame
 
 
-def _overlaps(truth: Labels, hyp: Labels) -> npt.NDArray[np.int64]:
+def overlaps(truth: Labels, hyp: Labels) -> npt.NDArray[np.int64]:
     """Pixels shared by each truth id (rows) and each track id (columns), 0 included."""
     g = truth.astype(np.int64).ravel()
     h = hyp.astype(np.int64).ravel()
@@ -238,7 +238,7 @@ def evaluate(
         hyp = masks.get(seq)
         if hyp is None:
             hyp = np.zeros_like(frame.truth.labels)
-        shared = _overlaps(frame.truth.labels, hyp)
+        shared = overlaps(frame.truth.labels, hyp)
         areas_t = shared.sum(axis=1)
         areas_h = shared.sum(axis=0)
         on_ignored = shared[[i for i in frame.ignored if i < shared.shape[0]]].sum(axis=0)

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tofcut.sim.truth import FrameTruth
+from tofcut.tools.evaluation.counts import Counts
 from tofcut.tools.evaluation.holding import holds
 from tofcut.tools.evaluation.scoring import MIN_IOU, MIN_PIXELS, Labels
 
@@ -35,7 +36,7 @@ BRIDGE_FRAMES = 10
 
 
 @dataclass(frozen=True)
-class Situations:
+class Situations(Counts):
     """How a run did in the two situations (see the module's docstring)."""
 
     from_start: int
@@ -46,20 +47,6 @@ class Situations:
     """Passages of touching pairs of different heights wholly in view together."""
     touching_apart: int
     """Of them, held by two tracks `APART_FRAMES` frames after."""
-
-    def __add__(self, other: Situations) -> Situations:
-        return Situations(
-            self.from_start + other.from_start,
-            self.from_start_held + other.from_start_held,
-            self.touching + other.touching,
-            self.touching_apart + other.touching_apart,
-        )
-
-    def to_json(self) -> dict[str, int]:
-        return {
-            "from_start": self.from_start, "from_start_held": self.from_start_held,
-            "touching": self.touching, "touching_apart": self.touching_apart,
-        }  # fmt: skip
 
 
 NONE = Situations(0, 0, 0, 0)
