@@ -69,7 +69,7 @@ def test_touching_boxes_of_different_heights_are_two_pieces(side_by_side):
 @pytest.mark.parametrize("side_by_side", [True, False])
 def test_the_face_a_tall_box_rises_from_a_low_ones_top_goes_to_the_tall_one(side_by_side):
     # 20 cm of the tall box's face stand over the low box's top, nearer it in the image than
-    # its own top: dealt by nearness alone, a fifth of the tall box went to the low one
+    # its own top: dealt by nearness alone, a sixth of the tall box went to the low one
     pieces, truth = _split(_pair(0.10, 0.30, side_by_side))
     tall = pieces[truth == 2]
     owner = np.bincount(tall).argmax()
