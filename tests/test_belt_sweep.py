@@ -70,6 +70,27 @@ def test_in_loud_noise_a_layer_of_low_tops_is_not_the_belt():
     assert choose_swept([belt, low], pixels, SweepParams()) is belt
 
 
+def test_a_layer_of_tops_that_went_over_the_belt_is_not_the_belt():
+    # a line that starts full: a big low box (15 cm, 150 pixels) with a taller one (30 cm)
+    # nose to tail behind it. In the first second the pixels the low top leaves are covered by
+    # the tall one, never showing the belt: the low tops are swept nearly as much as the belt
+    rng = np.random.default_rng(3)
+    samples, pixels, low, tall = 10, 300, BELT + 0.15, BELT + 0.3
+    h = np.full((samples, pixels), BELT, np.float32)
+    for t in range(samples):
+        front = 100 + 5 * t
+        h[t, front : front + 150] = low
+        h[t, max(0, front - 200) : front] = tall
+    h += rng.normal(0, 0.01, h.shape).astype(np.float32)
+    belt, tops = _score(h, [BELT, low])
+    assert tops.swept >= SweepParams().nearer_share * belt.swept
+    # but the belt's swept pixels were seen on the low tops as well: those went over it
+    assert belt.shared[low] >= 0.9 * belt.swept
+    assert tops.shared[BELT] == 0
+    assert choose_swept([belt, tops], pixels, SweepParams()) is belt
+    assert choose_swept([belt, tops], pixels, SweepParams(max_shared=1.0)) is tops
+
+
 def test_noise_alone_sweeps_nothing():
     h = _line()
     h[:, 100:] = BELT + np.random.default_rng(1).normal(0, 0.01, h[:, 100:].shape)
@@ -124,7 +145,14 @@ def test_the_window_samples_at_its_pace_and_keeps_its_last_seconds():
 
 @pytest.mark.parametrize(
     "bad",
-    [{"every_s": 0}, {"min_share": 1.5}, {"nearer_share": 0}, {"max_pixels": 0}, {"min_times": 0}],
+    [
+        {"every_s": 0},
+        {"min_share": 1.5},
+        {"nearer_share": 0},
+        {"max_pixels": 0},
+        {"min_times": 0},
+        {"max_shared": 1.5},
+    ],
 )
 def test_the_parameters_are_checked(bad):
     with pytest.raises(ValueError, match=r"must|share|>= 1"):

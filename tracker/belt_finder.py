@@ -6,7 +6,9 @@ them frame by frame, and `find_belt` the one-shot form. How and why: `docs/calib
 
 1. The plane, from the first frame: floor, belt, rail tops and box tops are parallel, so
    the heights of the points along their common normal pile up in peaks, one per layer (the
-   normal is the RANSAC plane's along which they pile up most sharply). The belt is the
+   normal is the RANSAC plane's along which they pile up most sharply, unless another
+   sharp pile's belt is a clearly larger support: a slanted family of box faces can pile up
+   more sharply). The belt is the
    nearest layer that is a *support* — what borders it in the image rises from it (boxes,
    rails) rather than dropping away from it (a box top, a rail top), or it runs right across
    the view — and is not small beside the largest support. The floor is a support too, but
@@ -70,6 +72,12 @@ class FinderParams:
     ransac_points: int = 3000
     """Points the dominant normal is refitted on (an even subsample of the valid pixels; its
     hypotheses are scored on `SCORE_POINTS` of them)."""
+    normal_candidates: int = 3
+    """Families of parallel planes tried for the belt's (`candidate_normals`)..."""
+    candidates_apart_deg: float = 15.0
+    """...their normals at least this far apart..."""
+    switch_share: float = 1.5
+    """...and another than the sharpest taken when its belt is this many times larger."""
     layer_bin_m: float = 0.01
     """Bin of the height histogram that finds the layers."""
     min_layer_share: float = 0.03
@@ -157,6 +165,10 @@ class FinderParams:
             raise SegmentError("plane_frames >= 1, ransac_tries >= 1, ransac_points >= 3")
         if self.edges_every < 1 or self.top_grow < 0 or self.min_top_pixels < 1:
             raise SegmentError("edges_every >= 1, top_grow >= 0, min_top_pixels >= 1")
+        if self.normal_candidates < 1 or self.switch_share < 1:
+            raise SegmentError("normal_candidates >= 1 and switch_share >= 1")
+        if not 0 < self.candidates_apart_deg < 90:
+            raise SegmentError("candidates_apart_deg must be in (0, 90)")
         if not 0 < self.top_tilt_deg < 90:
             raise SegmentError("top_tilt_deg must be in (0, 90)")
         shares = (self.min_layer_share, self.island_share, self.min_support_share)
@@ -374,12 +386,15 @@ PILE_BIN_M = 0.02
 """Bin of the heights along a hypothesis' normal when scoring how sharply they pile up."""
 
 
-def dominant_normal(points: F64, sigma: F64, tries: int, seed: int = 0) -> F64:
-    """The normal of the family of parallel planes that holds the scene best: of RANSAC's
-    planes through three points, the one along whose normal the points' heights pile up most
+def candidate_normals(
+    points: F64, sigma: F64, tries: int, count: int, apart_deg: float, seed: int = 0
+) -> list[F64]:
+    """Normals of families of parallel planes that may hold the scene, best first: of RANSAC's
+    planes through three points, those along whose normal the points' heights pile up most
     sharply (the sum of squared histogram counts, sharp points weighing more) — floor, belt,
-    rail and box tops all pile up along the vertical, while a wall of box faces is one plane
-    only. Refitted on the largest pile. Pointing to the camera."""
+    rail and box tops all pile up along the vertical, but so may a row of box faces seen
+    from the side — at most `count`, each `apart_deg` or more from those before it, each
+    refitted on its largest pile. Pointing to the camera."""
     rng = np.random.default_rng(seed)
     if len(points) < 3:
         raise SegmentError("a plane needs three points")
@@ -401,12 +416,27 @@ def dominant_normal(points: F64, sigma: F64, tries: int, seed: int = 0) -> F64:
         flat, weights=np.tile(weight, bins.shape[1]), minlength=span * bins.shape[1]
     )
     scores = (piles.reshape(bins.shape[1], span) ** 2).sum(axis=1)
-    n = normals[int(np.argmax(scores))]
+    close = math.cos(math.radians(apart_deg))
+    chosen: list[F64] = []
+    for i in np.argsort(-scores, kind="stable"):
+        if len(chosen) == count:
+            break
+        if any(abs(float(normals[i] @ m)) >= close for m in chosen):
+            continue
+        n = _refit_on_pile(points, sigma, normals[i])
+        if all(abs(float(n @ m)) < close for m in chosen):
+            chosen.append(n)
+    return chosen
+
+
+def _refit_on_pile(points: F64, sigma: F64, n: F64) -> F64:
+    """The plane refitted on the largest pile of the heights along `n`, and on what the refit
+    holds; its normal, pointing to the camera."""
     heights = points @ n
     reach = 2.5 * sigma
     counts = np.bincount(np.floor((heights - heights.min()) / PILE_BIN_M).astype(np.int64))
     off = heights.min() + (int(np.argmax(counts)) + 0.5) * PILE_BIN_M
-    for _ in range(4):  # refit on the largest pile, and on what the refit holds
+    for _ in range(4):
         held = np.abs(points @ n - off) < reach
         if np.count_nonzero(held) < 3:
             break
@@ -530,18 +560,56 @@ def choose_belt(layers: list[Layer], params: FinderParams) -> int | None:
     return max(large, key=lambda i: layers[i].plane.offset_m)  # the nearest: least far
 
 
+UNSUPPORTED = 0.5
+"""A family whose belt is no support (the largest layer, for want of one) counts its belt's
+pixels at this share; so does another than the sharpest whose belt's border does not rise (a
+wall of box faces or a stand's side runs across the view, but nothing stands on it)."""
+
+
 def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[Layer]:
     """The horizontal layers of a frame, nearest the camera first: each with its plane (all
     share the family's normal), how much its border drops away and how wide it runs across
-    the view. The layers are the peaks of the heights along the family's normal (of the
-    sharper half of the pixels: far, noisy ones blur the peaks)."""
-    seen = ok
-    ok = ok & (sigma <= quiet_enough(sigma[ok], params))
-    pts, sig = xyz[ok], sigma[ok]
+    the view.
+
+    The family is the candidate normals' (`candidate_normals`) whose belt (`choose_belt`) is
+    the largest, a support counting for more (`UNSUPPORTED`): the first candidate's unless
+    another's is `switch_share` times larger. On a line packed with boxes seen steeply from
+    the side, a slanted family of their faces can pile up more sharply than the level one."""
+    quiet = ok & (sigma <= quiet_enough(sigma[ok], params))
+    pts, sig = xyz[quiet], sigma[quiet]
     if len(pts) < 3:
         return []
     step = max(1, len(pts) // params.ransac_points)
-    normal = dominant_normal(pts[::step], sig[::step], params.ransac_tries)
+    normals = candidate_normals(
+        pts[::step], sig[::step], params.ransac_tries, params.normal_candidates,
+        params.candidates_apart_deg,
+    )  # fmt: skip
+    best: list[Layer] = []
+    best_pixels = 0.0
+    for k, normal in enumerate(normals):
+        layers = layers_along(xyz, ok, quiet, sigma, normal, params)
+        pick = choose_belt(layers, params)
+        if pick is None:
+            continue
+        belt = layers[pick]
+        # the sharpest pile's belt may be a support by running across the view; another's
+        # must show things standing on it to overturn it
+        held = belt.supports(params) if k == 0 else belt.drop_share < params.island_share
+        pixels = belt.pixels * (1.0 if held else UNSUPPORTED)
+        pixels /= 1.0 if k == 0 else params.switch_share
+        if k == 0 or pixels > best_pixels:
+            best, best_pixels = layers, pixels
+    return best
+
+
+def layers_along(
+    xyz: F64, seen: B, ok: B, sigma: F64, normal: F64, params: FinderParams
+) -> list[Layer]:
+    """The layers of a frame along about `normal`, nearest the camera first (`ok`: the
+    quiet pixels, `seen`: all usable). They are the peaks of the heights along it (of the
+    sharper half of the pixels: far, noisy ones blur the peaks), their shared normal refitted
+    to make them flattest (`family_plane`)."""
+    pts, sig = xyz[ok], sigma[ok]
     along = pts @ normal
     sharp = sig <= np.percentile(sig, 50)
     found = find_layers(
@@ -1127,7 +1195,7 @@ class _Stack:
 class BeltFinder:
     """Finds the belt from the frames of the first seconds of a run.
 
-    The plane comes from the first frame (about 10-25 ms), and is refitted once on the mean
+    The plane comes from the first frame (about 25-40 ms), and is refitted once on the mean
     of the first `plane_frames` (a few ms); the travel once enough tops have been followed
     (about 3 ms a frame until then); the width with it. Once the estimate is final (`done`),
     `update` returns it at once: a live run can keep calling it.

@@ -11,7 +11,10 @@ So, over a window of sampled frames, each layer (a peak of the heights along the
 normal, pooled over the window) scores the pixels that were on it, were above it at other
 times, and were never below it. The belt is the layer that scores most; a nearer layer that
 scores at least half as much, and is clearly apart from it, is the belt instead (the floor
-can score high at steep tilts, never a layer above the belt). Heights are 3×3 medians, so
+can score high at steep tilts, never a layer above the belt) — unless the best one's swept
+pixels were seen on the nearer one too: then the nearer one is a layer of tops that went over
+the best (a big box, followed by a taller one, swept and never showed the belt in the first
+second of a line that starts full), and the best is the belt. Heights are 3×3 medians, so
 that a pixel's noise or a wrapped far reading does not pass for something going over it, and
 above or below is judged against the median's noise: against one reading's, on a loud line
 the belt seen 13 cm below a layer of box tops did not count as below it, and those tops were
@@ -20,7 +23,7 @@ taken for the belt.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -52,7 +55,11 @@ class SweepParams:
     nearer_share: float = 0.5
     """A nearer layer with this share of the best's score is the belt instead..."""
     apart_m: float = 0.06
-    """...if it is at least this much nearer (two peaks of one layer are not two layers)."""
+    """...if it is at least this much nearer (two peaks of one layer are not two layers)..."""
+    max_shared: float = 0.1
+    """...and at most this share of the best's swept pixels were seen on it: more, and it is
+    a layer of tops going over the best one (the floor's pixels, which the belt never moves
+    away from, are not)."""
     min_times: int = 2
     """A pixel is on a layer, or above it, in at least this many samples."""
     above_m: float = 0.03
@@ -65,6 +72,8 @@ class SweepParams:
             raise SegmentError("sweep times and lengths must be positive")
         if not (0 < self.min_share < 1 and 0 < self.nearer_share <= 1):
             raise SegmentError("min_share in (0, 1) and nearer_share in (0, 1]")
+        if not 0 <= self.max_shared <= 1:
+            raise SegmentError("max_shared in [0, 1]")
         if self.max_pixels < 1 or self.min_times < 1:
             raise SegmentError("max_pixels >= 1 and min_times >= 1")
 
@@ -81,6 +90,9 @@ class SweptLayer:
     """RMS distance from the layer of the heights seen on it."""
     on: int
     """Height samples seen on it (the RMS's count)."""
+    shared: dict[float, int] = field(default_factory=dict)
+    """For each other layer (by offset), how many of its swept pixels were seen on that one
+    as well: what a layer that moves over it (box tops) shows over the belt."""
 
 
 def median_heights(xyz: F64, ok: B, normal: F64, at: B | None = None) -> tuple[F64, B]:
@@ -100,13 +112,16 @@ def swept_layers(
     noise and on-plane band."""
     # the heights are 3×3 medians: their noise is a share of one reading's
     reach = np.maximum(np.float32(3.0 * MEDIAN_SHARES[1]) * sigma, np.float32(params.above_m))
-    swept, on, squares = belt_sweep_kernels.sweep_scores(
+    swept, on, squares, shared = belt_sweep_kernels.sweep_scores(
         heights, ok, reach, band, np.asarray(layers, np.float64), params.min_times
     )
-    return [
-        SweptLayer(float(off), int(s), float(np.sqrt(q / n)) if n else 0.0, int(n))
-        for off, s, n, q in zip(layers, swept, on, squares, strict=True)
-    ]
+    out = []
+    for k, off in enumerate(layers):
+        n = int(on[k])
+        others = {float(o): int(shared[k, j]) for j, o in enumerate(layers) if j != k}
+        rms = float(np.sqrt(squares[k] / n)) if n else 0.0
+        out.append(SweptLayer(float(off), int(swept[k]), rms, n, others))
+    return out
 
 
 def choose_swept(layers: list[SweptLayer], pixels: int, params: SweepParams) -> SweptLayer | None:
@@ -120,6 +135,7 @@ def choose_swept(layers: list[SweptLayer], pixels: int, params: SweepParams) -> 
         lay for lay in layers
         if lay.swept >= params.nearer_share * best.swept
         and lay.offset_m > best.offset_m + params.apart_m
+        and best.shared.get(lay.offset_m, 0) <= params.max_shared * best.swept
     ]  # fmt: skip
     return max(nearer, key=lambda lay: lay.offset_m) if nearer else best
 

@@ -13,10 +13,11 @@ from tofcut.tracker.compiled import B_2D, F32_2D, F64_1D, kernel
 @kernel((F32_2D, B_2D, F32_2D, F32_2D, F64_1D, 1))
 def sweep_scores(
     heights: F32, ok: B, reach: F32, band: F32, offsets: F64, min_times: int
-) -> tuple[I64, I64, F64]:  # fmt: skip
+) -> tuple[I64, I64, F64, I64]:  # fmt: skip
     """For each layer (`offsets`, n·p) over (samples, pixels) heights: the pixels seen on it
     (within `band`), above it (by more than `reach`) in at least `min_times` samples each and
-    below it in fewer; and the count and sum of squares of the heights seen on it."""
+    below it in fewer; the count and sum of squares of the heights seen on it; and, for each
+    pair (k, j), how many of the pixels swept over layer k were seen on layer j as often."""
     samples, pixels = heights.shape
     layers = offsets.size
     swept = np.zeros(layers, np.int64)
@@ -25,6 +26,7 @@ def sweep_scores(
     at = np.zeros(layers, np.int64)
     up = np.zeros(layers, np.int64)
     down = np.zeros(layers, np.int64)
+    shared = np.zeros((layers, layers), np.int64)
     for i in range(pixels):
         at[:] = 0
         up[:] = 0
@@ -45,4 +47,7 @@ def sweep_scores(
             on[k] += at[k]
             if at[k] >= min_times and up[k] >= min_times and down[k] < min_times:
                 swept[k] += 1
-    return swept, on, squares
+                for j in range(layers):
+                    if j != k and at[j] >= min_times:
+                        shared[k, j] += 1
+    return swept, on, squares, shared
