@@ -561,9 +561,9 @@ def choose_belt(layers: list[Layer], params: FinderParams) -> int | None:
 
 
 UNSUPPORTED = 0.5
-"""A family whose belt is no support (the largest layer, for want of one) counts its belt's
-pixels at this share; so does another than the sharpest whose belt's border does not rise (a
-wall of box faces or a stand's side runs across the view, but nothing stands on it)."""
+"""A family with no support counts its largest layer's pixels at this share (so does another
+family than the sharpest whose supports only run across the view: a stand's side does, but
+nothing stands on it)."""
 
 
 def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[Layer]:
@@ -571,10 +571,11 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
     share the family's normal), how much its border drops away and how wide it runs across
     the view.
 
-    The family is the candidate normals' (`candidate_normals`) whose belt (`choose_belt`) is
-    the largest, a support counting for more (`UNSUPPORTED`): the first candidate's unless
-    another's is `switch_share` times larger. On a line packed with boxes seen steeply from
-    the side, a slanted family of their faces can pile up more sharply than the level one."""
+    The family is the candidate normals' (`candidate_normals`) whose largest support
+    (`_family_support`) is the largest: the first candidate's unless another's is
+    `switch_share` times larger. On a line packed with boxes seen steeply from the side, a
+    slanted family of their faces can pile up more sharply than the level one. (Not the
+    belt each would choose, the nearest support: that may be a layer of box tops.)"""
     quiet = ok & (sigma <= quiet_enough(sigma[ok], params))
     pts, sig = xyz[quiet], sigma[quiet]
     if len(pts) < 3:
@@ -588,18 +589,25 @@ def find_belt_layers(xyz: F64, ok: B, sigma: F64, params: FinderParams) -> list[
     best_pixels = 0.0
     for k, normal in enumerate(normals):
         layers = layers_along(xyz, ok, quiet, sigma, normal, params)
-        pick = choose_belt(layers, params)
-        if pick is None:
-            continue
-        belt = layers[pick]
-        # the sharpest pile's belt may be a support by running across the view; another's
-        # must show things standing on it to overturn it
-        held = belt.supports(params) if k == 0 else belt.drop_share < params.island_share
-        pixels = belt.pixels * (1.0 if held else UNSUPPORTED)
+        pixels = _family_support(layers, k == 0, params)
         pixels /= 1.0 if k == 0 else params.switch_share
         if k == 0 or pixels > best_pixels:
             best, best_pixels = layers, pixels
     return best
+
+
+def _family_support(layers: list[Layer], sharpest: bool, params: FinderParams) -> float:
+    """How well a family of layers holds a belt: the pixels of its largest support, or
+    `UNSUPPORTED` of its largest layer's where it has none. The sharpest family's supports
+    may be so by running across the view; another's must show things standing on them (their
+    border rises) to overturn it."""
+    if not layers:
+        return 0.0
+    held = [
+        lay.pixels for lay in layers
+        if (lay.supports(params) if sharpest else lay.drop_share < params.island_share)
+    ]  # fmt: skip
+    return float(max(held)) if held else UNSUPPORTED * max(lay.pixels for lay in layers)
 
 
 def layers_along(
