@@ -6,14 +6,14 @@ them frame by frame, and `find_belt` the one-shot form. How and why: `docs/calib
 
 1. The plane, from the first frame: floor, belt, rail tops and box tops are parallel, so
    the heights of the points along their common normal pile up in peaks, one per layer (the
-   normal is the RANSAC plane's along which they pile up most sharply, unless another
-   sharp pile's belt is a clearly larger support: a slanted family of box faces can pile up
-   more sharply). The belt is the
-   nearest layer that is a *support* — what borders it in the image rises from it (boxes,
-   rails) rather than dropping away from it (a box top, a rail top), or it runs right across
-   the view — and is not small beside the largest support. The floor is a support too, but
-   farther away. After `plane_frames` frames the plane is refitted on their mean, which is
-   quiet enough to leave out a rail's top and the feet of the boxes.
+   normal is the RANSAC plane's along which they pile up most sharply, unless another sharp
+   pile's family has a clearly larger support: a slanted family of box faces can pile up
+   more sharply). The belt is the nearest layer that is a *support* — what borders it in the
+   image rises from it (boxes, rails) rather than dropping away from it (a box top, a rail
+   top), or it runs right across the view — and is not small beside the largest support. The
+   floor is a support too, but farther away. After `plane_frames` frames the plane is
+   refitted on their mean, which is quiet enough to leave out a rail's top and the feet of
+   the boxes.
 2. The travel: the level tops of what stands on the belt are followed from frame to frame
    in the plane's own coordinates; each gives a velocity, the slope of a least-squares line
    through its positions, and the direction and speed are medians over them, weighted by
@@ -77,7 +77,8 @@ class FinderParams:
     candidates_apart_deg: float = 15.0
     """...their normals at least this far apart..."""
     switch_share: float = 1.5
-    """...and another than the sharpest taken when its belt is this many times larger."""
+    """...and another family than the sharpest taken when its largest support is this many
+    times larger (`_family_support`)."""
     layer_bin_m: float = 0.01
     """Bin of the height histogram that finds the layers."""
     min_layer_share: float = 0.03
