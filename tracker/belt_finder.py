@@ -233,7 +233,12 @@ class Layer:
     def supports(self, params: FinderParams) -> bool:
         """Whether things could stand on it: what borders it rises from it, or it runs across
         the whole view and is wide (an empty belt with no rails, its edges dropping away)."""
-        return self.drop_share < params.island_share or self.span_m >= params.min_span_m
+        return self.rises(params) or self.span_m >= params.min_span_m
+
+    def rises(self, params: FinderParams) -> bool:
+        """Whether what borders it in the image rises from it more than it drops away: things
+        stand on it."""
+        return self.drop_share < params.island_share
 
 
 @dataclass(frozen=True, eq=False)
@@ -606,7 +611,7 @@ def _family_support(layers: list[Layer], sharpest: bool, params: FinderParams) -
         return 0.0
     held = [
         lay.pixels for lay in layers
-        if (lay.supports(params) if sharpest else lay.drop_share < params.island_share)
+        if (lay.supports(params) if sharpest else lay.rises(params))
     ]  # fmt: skip
     return float(max(held)) if held else UNSUPPORTED * max(lay.pixels for lay in layers)
 

@@ -133,8 +133,9 @@ def _nearest_under(
     ])  # fmt: skip
     h = belt.height(xyz[rows, cols])
     slack = np.maximum(MIN_TOP_STEP_M, 3.0 * noise[rows, cols])
-    below = heights[:, None] >= h[None, :] - slack[None, :]
-    nearest: I64 = np.where(below.any(axis=0), np.where(below, far, np.inf), far).argmin(axis=0)
+    not_below = heights[:, None] >= h[None, :] - slack[None, :]
+    some = not_below.any(axis=0)
+    nearest: I64 = np.where(some, np.where(not_below, far, np.inf), far).argmin(axis=0)
     return nearest
 
 
