@@ -154,6 +154,7 @@ class RerunSink(Closing):
         self._writer = FrameLogger(rec, calibration, belt_direction, tree.root)
         self._files: list[Path] = [target.path] if target.path is not None else []
         self._segment_started = time.monotonic()
+        self._segment_due = False
         self._cond = threading.Condition()
         self._items: deque[_Frame | _Event] = deque()
         self._queued_frames = 0
@@ -312,31 +313,38 @@ class RerunSink(Closing):
                 self._writer_cpu_s += time.thread_time() - start
 
     def _write_frames(self, batch: list[_Frame], dropped: int) -> None:
-        """Write a batch; a file's worker then waits for rerun each time `SYNC_FRAMES` more
-        frames have been written."""
+        """Write a batch, into the next file if the current one is due to close; a file's
+        worker then waits for rerun each time `SYNC_FRAMES` more frames have been written.
+        A file is closed only when a frame is there for the next, so none holds no frame."""
+        if self._segment_due:
+            self._next_segment()
         self._writer.write_frames([f.row for f in batch], dropped)
         with self._cond:
             before = self._written
             self._written += len(batch)
         if self.lossless and self._written // SYNC_FRAMES > before // SYNC_FRAMES:
             self._writer.sync()
-            self._next_segment_if_due()
+            self._segment_due = self._due()
         elif not self.lossless and self.target.kind == "save":
-            self._next_segment_if_due()
+            self._segment_due = self._due()
 
-    def _next_segment_if_due(self) -> None:
-        """A file past its segment's size or age is closed and the next one started."""
+    def _due(self) -> bool:
+        """Whether the current file is past its segment's size or age."""
         t = self.target
         if t.kind != "save":
-            return
-        current = self._files[-1]
+            return False
         aged = t.segment_s > 0 and time.monotonic() - self._segment_started >= t.segment_s
         try:
-            big = t.segment_bytes > 0 and current.stat().st_size >= t.segment_bytes
+            return aged or (
+                t.segment_bytes > 0 and self._files[-1].stat().st_size >= t.segment_bytes
+            )
         except OSError:  # gone: rerun will fail on the next write, and say so
-            big = False
-        if not (aged or big):
-            return
+            return aged
+
+    def _next_segment(self) -> None:
+        """Close the current file and start the next one."""
+        t = self.target
+        current = self._files[-1]
         number = len(self._files) + 1
         following = t.segment_path(number)
         # Closes the current file (rerun flushes it and writes its footer), then opens the next.
