@@ -51,10 +51,10 @@ def _without_times(doc):
 def test_a_batch_on_two_ray_workers_gives_the_table_of_the_runs_one_by_one(
     tmp_path, capsys, ray_temp
 ):
-    # the lines are recorded by the first run and reused by the second (rendering is the
-    # slow part; recording on Ray is in tests/test_evaluation.py's family test)
+    # the lines are recorded by the first run, on Ray, and reused by the second (rendering
+    # is the slow part)
     work, tables, recorded = tmp_path / "work", {}, {}
-    for workers in ("1", "2"):
+    for workers in ("2", "1"):
         out = tmp_path / f"out{workers}"
         code = main(["evaluate", "--scene", "conveyor", "--seeds", "0-1", "--frames", "8",
                      "--trackers", "tofcut", "--workers", workers, "--work", str(work),
@@ -68,7 +68,7 @@ def test_a_batch_on_two_ray_workers_gives_the_table_of_the_runs_one_by_one(
         )
         recorded[workers] = [p.stat().st_mtime_ns for p in sorted(work.rglob("capture.tofcap"))]
     assert tables["1"] == tables["2"]
-    assert len(recorded["1"]) == 2
+    assert len(recorded["2"]) == 2
     assert recorded["1"] == recorded["2"]
     md = tables["2"][0]
     assert "| 0 | conveyor" in md

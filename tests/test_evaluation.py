@@ -186,7 +186,7 @@ def test_a_family_runs_both_trackers_reuses_captures_and_reports_failures(
 ):
     work, out = tmp_path / "work", tmp_path / "out"
     code = main(["evaluate", "--scene", "conveyor", "--seeds", "0-1", "--frames", "20",
-                 "--work", str(work), "--out", str(out), "--workers", "2"])  # fmt: skip
+                 "--work", str(work), "--out", str(out), "--workers", "1"])  # fmt: skip
     printed = capsys.readouterr().out
     assert code == 0, printed
     doc = json.loads((out / "evaluation.json").read_text())
