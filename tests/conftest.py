@@ -1,9 +1,46 @@
-"""The suite's one process-wide setting: a suite started in the background without job
-control (`pytest &` in a script) has SIGINT ignored, and the children the Ctrl-C tests start
-would inherit that and never stop. SIGINT is given Python's usual handler, which a child's
-exec resets to the default."""
+"""The suite's process-wide settings.
 
+A suite started in the background without job control (`pytest &` in a script) has SIGINT
+ignored, and the children the Ctrl-C tests start would inherit that and never stop. SIGINT
+is given Python's usual handler, which a child's exec resets to the default.
+
+With numba's cache cold (a fresh clone, or CI's bounds-checked run in a cache of its own),
+every worker and every `tofcut` process a test starts would compile the tracker's kernels
+itself, at once, for a minute and a half of CPU each: they are compiled once, before the
+workers start, by tracking a few frames of the emulated conveyor."""
+
+import os
 import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import tofcut
 
 if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
+
+WARM_UP = ["track", "emulator:conveyor", "--fast", "--frames", "20", "--save", os.devnull]
+"""What compiles the kernels: the emulator's, demodulation's and the tracker's."""
+
+
+def _cache_is_cold() -> bool:
+    """Whether numba has no cached tracker kernel where this run would look for one."""
+    where = os.environ.get("NUMBA_CACHE_DIR") or str(Path(tofcut.__file__).parent / "tracker")
+    return not any(Path(where).rglob("cut_kernels.*.nbi"))
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    config = session.config
+    workers = getattr(config.option, "numprocesses", None) or 0
+    if hasattr(config, "workerinput") or workers < 2 or not _cache_is_cold():
+        return
+    print("\nnumba's cache is cold: compiling the kernels once before the workers start")
+    done = subprocess.run(
+        [sys.executable, "-m", "tofcut.tools.cli", "-q", *WARM_UP],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    if done.returncode != 0:  # the tests will say what is wrong; this only saves time
+        print(f"the warm-up failed (exit {done.returncode}); the workers compile instead")
