@@ -6,8 +6,8 @@ is given Python's usual handler, which a child's exec resets to the default.
 
 With numba's cache cold (a fresh clone, or CI's bounds-checked run in a cache of its own),
 every worker and every `tofcut` process a test starts would compile the tracker's kernels
-itself, at once, for a minute and a half of CPU each: they are compiled once, before the
-workers start, by tracking a few frames of the emulated conveyor."""
+itself, at once, for about 80 s of CPU each: they are compiled once, before the workers
+start, by tracking a few frames of the emulated conveyor."""
 
 import os
 import signal
