@@ -207,7 +207,7 @@ def test_a_silent_controller_is_counted_and_never_blocks_the_caller(pty_line):
     assert conveyor.diverter_commands == []  # a late push would hit the wrong object
 
 
-def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(pty_line):
+def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(pty_line, caplog):
     conveyor, line, client, _now = pty_line(timeout_s=10.0, retries=10)
     fresh(client, conveyor)
     with line.silent():
@@ -225,6 +225,10 @@ def test_close_abandons_a_request_to_a_silent_controller_at_its_deadline(pty_lin
         assert client._abandoned is not None
         assert client._abandoned.is_alive()
         assert client.stats.timeouts == 0  # the request was abandoned, not timed out
+        with line.unplugged():  # the abandoned request ends with the port: no news after close
+            client._abandoned.join(WAIT_S)
+            assert not client._abandoned.is_alive()
+    assert not [r for r in caplog.records if "lost" in r.getMessage()]
 
 
 @pytest.mark.parametrize("heartbeat_s", [LINK_RANGES["heartbeat_s"][0], 1e-6])

@@ -448,7 +448,10 @@ class ConveyorClient(Closing):
             self._link_up = False
             self._connected = False
             self._lock.notify_all()
-        log.warning("conveyor link %s lost: %s", self.link.port, error)
+        # a request that close() abandoned ends here once the port is gone: no news then
+        (log.debug if self._stop.is_set() else log.warning)(
+            "conveyor link %s lost: %s", self.link.port, error
+        )
 
     def _stats(self) -> LinkStats:
         return LinkStats(**self._counts, link_up=self._link_up, last_error=self._last_error)
