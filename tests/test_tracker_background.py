@@ -9,10 +9,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tofcut.driver.belt import KnownBelt
 from tofcut.sim.catalog import open_scene
 from tofcut.sim.preview import decode, scene_exposure
 from tofcut.tracker.background import BackgroundModel
+from tofcut.tracker.belt_prior import known_speed_prior
 from tofcut.tracker.noise import range_noise
+from tofcut.tracker.tracker import Tracker
 
 
 def _learned(frames: int = 6):
@@ -97,6 +100,35 @@ def test_over_a_running_belt_the_scenery_is_held_to_what_it_was_when_the_belt_wa
     # rail, a guide): the hold goes back to that, not down to the belt's plane
     np.testing.assert_array_equal(model.range[kept], laid[kept])
     np.testing.assert_array_equal(model.range[beside], before_beside)
+
+
+@pytest.mark.parametrize("running", [True, False], ids=["running", "no-travel-yet"])
+def test_a_running_belt_whose_width_is_not_known_is_held_over_its_plane(running):
+    # a belt wider than the view never shows its width: the scenery over it is held from its
+    # travel on all the same (it used to be held only once a width was known: on such a
+    # line, never); before the travel is known, nothing says the belt runs
+    source = open_scene("conveyor", 0)
+    belt = dataclasses.replace(source.belt.geometry, width_m=None)
+    prior = known_speed_prior(KnownBelt(belt, source.belt.speed_mps, "scene")) if running else None
+    tracker = Tracker(belt=belt)
+    period = source.settings.frame_period * 1e-4
+    frames = (decode(source, scene_exposure(source, i * period, i))[0] for i in range(40))
+    for frame in frames:
+        tracker.update(frame, prior)
+        if tracker.background is not None and tracker.background.ready:
+            break
+    model = tracker.background
+    assert model is not None
+    assert model.ready
+    with np.errstate(invalid="ignore", divide="ignore"):
+        surface = belt.range_along(frame.xyz / frame.range[..., None])
+    rows, cols = np.nonzero(model.known & np.isfinite(surface))
+    took = rows[100:300], cols[100:300]
+    laid = model.range[took].copy()
+    model.range[took] -= 0.2  # objects the scenery took in while they passed
+    tracker.update(next(frames), prior)
+    came_back = np.abs(model.range[took] - laid) < 0.05
+    assert came_back.mean() > 0.95 if running else came_back.mean() < 0.05
 
 
 @pytest.mark.parametrize("height", [0.005, 0.01])

@@ -225,13 +225,14 @@ class BackgroundModel:
         self._cleared_range = np.where(self.known, self.range, np.nan)
 
     def hold_belt(self, frame: Frame, belt: BeltGeometry, noise: F64) -> None:
-        """Over a running belt of known width nothing stands still: where the scenery has come
-        nearer than it was when the belt was laid (objects passing so slowly, or so close
-        together, that the model took them in), it goes back to what it was then; and its
-        noise is at most what the sensor's `noise` says (objects missed while passing would
-        otherwise widen it, until none stood out of it). What stood there when the belt was
-        laid (a rail, a guide), or was taken in by `absorb` since, stays; a pixel learned
-        only since goes back to the belt's surface."""
+        """Over a running belt nothing stands still (over its width where that is known, over
+        its plane where not): where the scenery has come nearer than it was when the belt
+        was laid (objects passing so slowly, or so close together, that the model took them
+        in), it goes back to what it was then; and its noise is at most what the sensor's
+        `noise` says (objects missed while passing would otherwise widen it, until none
+        stood out of it). What stood there when the belt was laid (a rail, a guide), or was
+        taken in by `absorb` since, stays; a pixel learned only since goes back to the belt's
+        surface."""
         self._find_held_surface(frame, belt)
         background_kernels.hold_belt(
             self.range, self.sigma, self.known, self._held_surface, self._cleared_range, noise,

@@ -33,7 +33,7 @@ from typing import Literal
 import numpy as np
 from scipy import ndimage
 
-from tofcut._types import F32, F64, I64, B
+from tofcut._types import F32, F64, I64, U16, B
 from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.frames import Frame
 from tofcut.tracker import stats_kernels
@@ -148,7 +148,10 @@ class FinderParams:
     """Every this many frames goes into the width (the edges do not move: a few suffice)..."""
     width_every_s: float = 1.0
     """...and once the travel is final, the width is fitted every this many seconds until it is
-    found, or `give_up_s`."""
+    found, or `give_up_s`..."""
+    width_run_m: float = 0.5
+    """...from when the belt has run this far: what it carries has then swept its surface, and
+    an object standing a second on a slow belt is not taken for a rail beside it."""
     max_spread_deg: float = 5.0
     """A top agrees with the travel when its direction is within this of it..."""
     agree_speed: float = 0.1
@@ -181,7 +184,8 @@ class FinderParams:
             self.max_speed_mps, self.min_speed_mps, self.max_gap_s, self.min_follow_s,
             self.max_track_rms_m, self.size_change, self.area_gate, self.settle_s,
             self.min_longest_s, self.done_s, self.min_done_s, self.max_s, self.patience_s,
-            self.give_up_s, self.min_shift_m, self.width_every_s, self.max_spread_deg,
+            self.give_up_s, self.min_shift_m, self.width_every_s, self.width_run_m,
+            self.max_spread_deg,
             self.agree_speed, self.min_agreeing, self.max_speed_se,
         )  # fmt: skip
         if not all(math.isfinite(x) and x > 0 for x in positive):
@@ -1406,15 +1410,21 @@ class BeltFinder:
     # --- the layer things move over -----------------------------------------------------
 
     def _width_settled(self, t: float) -> bool:
-        """Fit the width (again every `width_every_s`) once the travel is final: whether it is
-        settled, found or looked for until `give_up_s` (the edges take more frames than the
-        travel: a belt whose travel was plain in a second hid its edges under its objects)."""
+        """Fit the width (again every `width_every_s`) once the travel is final and the belt
+        has run `width_run_m`: whether it is settled, found or looked for until `give_up_s`
+        (the edges take more frames than the travel: a belt whose travel was plain in a
+        second hid its edges under its objects)."""
         assert self._t_first is not None
         p = self.params
+        elapsed = t - self._t_first
+        travel = self._travel
+        swept = travel is None or travel.speed_mps * elapsed >= p.width_run_m
+        if not swept and elapsed < p.give_up_s:
+            return False
         if self._width_tried is None or t - self._width_tried >= p.width_every_s:
             self._width_tried = t
             self._width = self._fit_width()
-        return self._width is not None or self._travel is None or t - self._t_first >= p.give_up_s
+        return self._width is not None or travel is None or elapsed >= p.give_up_s
 
     def _settled(self, t: float) -> bool:
         """Whether the belt's layer is settled: seen swept, or nothing moved to sweep it, or
@@ -1513,8 +1523,9 @@ class BeltFinder:
 
 @dataclass
 class _EdgeSums:
-    """Per pixel, over the frames: its mean height where it read near the belt, how often it
-    read well above or below it, and its mean plane position in each case (for the width)."""
+    """Per pixel, over the frames: its heights where it read near the belt (a histogram, for
+    their quantiles), how often it read well above or below it, and its mean height and plane
+    position in each case (for the width)."""
 
     frames: int
     """Frames offered (every `edges_every`-th is taken)."""
@@ -1525,6 +1536,8 @@ class _EdgeSums:
     """(3, H, W): heights summed per case."""
     sums: F64
     """(3, H, W, 2): plane positions summed per case."""
+    near: U16
+    """(NEAR_BINS, H, W): the readings near the belt, by height."""
 
     NEAR_M = 0.06
     """A reading this close to the belt is the belt or a low rim on it."""
@@ -1533,12 +1546,15 @@ class _EdgeSums:
     within a few noise sigmas of the belt frame by frame, is not)."""
     MAX_RIM_M = 0.3
     """A rim or guard beside the belt stands no higher than this."""
+    NEAR_BINS = 48
+    """Bins of the near readings' histogram, across +-`NEAR_M` (2.5 mm each)."""
 
     @classmethod
     def empty(cls, shape: tuple[int, int]) -> _EdgeSums:
         return cls(
             0, np.zeros(shape, np.int64), np.zeros((3, *shape), np.int64),
             np.zeros((3, *shape)), np.zeros((3, *shape, 2)),
+            np.zeros((cls.NEAR_BINS, *shape), np.uint16),
         )  # fmt: skip
 
     def add(self, xyz: F64, ok: B, plane: PlaneFit, e1: F64, e2: F64) -> None:
@@ -1553,25 +1569,41 @@ class _EdgeSums:
             self.counts[k] += mask
             self.heights[k][mask] += h[mask]
             self.sums[k][mask] += uv[mask]
+        at = np.flatnonzero(near)
+        step = 2 * self.NEAR_M / self.NEAR_BINS
+        bins = np.clip(
+            ((h.ravel()[at] + self.NEAR_M) / step).astype(np.int64), 0, self.NEAR_BINS - 1
+        )
+        flat = self.near.reshape(self.NEAR_BINS, -1)
+        flat[bins, at] += np.uint16(1)  # one reading per pixel: no repeated index
+
+    def near_quantile(self, share: float) -> F64:
+        """Each pixel's `share` quantile of its heights read near the belt (to the histogram's
+        2.5 mm; NaN under 3 readings)."""
+        n = self.counts[0]
+        cum = np.cumsum(self.near, axis=0, dtype=np.int64)
+        k = np.argmax(cum >= np.maximum(share * n, 1), axis=0)  # the bin holding that reading
+        step = 2 * self.NEAR_M / self.NEAR_BINS
+        return np.where(n >= 3, -self.NEAR_M + (k + 0.5) * step, np.nan)
 
     def width(self, d2: F64) -> WidthFit | None:
         """The width across the direction `d2` (plane basis), where both edges are seen."""
         near_n, up_n, down_n = self.counts
         seen = self.valid > 0
         with np.errstate(invalid="ignore", divide="ignore"):
-            mean = np.where(near_n >= 3, self.heights[0] / near_n, np.nan)
+            median = self.near_quantile(0.5)
             uv = self.sums[0] / near_n[..., None]
             steady_up = seen & (up_n >= 0.8 * self.valid)
             up = np.where(steady_up, self.heights[1] / up_n, np.nan)
             up_uv = self.sums[1] / up_n[..., None]
-        flat = level(mean, uv)  # not a wall, nor pixels mixing two surfaces at an edge
-        is_belt = flat & (np.abs(mean) < self.BELT_M)
-        low_rim = flat & (mean >= self.BELT_M)
+        flat = level(median, uv)  # not a wall, nor pixels mixing two surfaces at an edge
+        is_belt = flat & (np.abs(median) < self.BELT_M)
+        low_rim = flat & (median >= self.BELT_M)
         # a taller guard's level top; not what stands far above (nor a far pixel whose range
         # wrapped round to look near)
         high_rim = ~is_belt & ~low_rim & level(np.where(up <= self.MAX_RIM_M, up, np.nan), up_uv)
         is_lower = seen & ~is_belt & ~low_rim & ~high_rim
-        is_lower &= (down_n >= 0.8 * self.valid) | (mean <= -self.BELT_M)
+        is_lower &= (down_n >= 0.8 * self.valid) | (median <= -self.BELT_M)
 
         def place(k: int, mask: B) -> F64:
             return np.asarray(self.sums[k][mask] / self.counts[k][mask][:, None], np.float64)

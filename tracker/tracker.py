@@ -139,7 +139,9 @@ class Tracker:
             self.background.clear_belt(frame, self.belt)
             self._belt_laid = True
             ended += self.roster.flat_on(labels, self.belt, p.background.min_height_m)
-        if ready and prior is not None and self.belt is not None and self.belt.width_m is not None:
+        if ready and prior is not None and self.belt is not None:
+            # a running belt: held from its travel on, not only once its width is seen (a
+            # belt wider than the view never shows it)
             self.background.hold_belt(frame, self.belt, noise)
         out = tuple(t.last for t in self.roster.tracks if t.last is not None)
         if ready and out:
