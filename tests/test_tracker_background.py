@@ -18,13 +18,17 @@ from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tracker import Tracker
 
 
+def _frames(source, count: int):
+    """The first `count` frames of an emulated scene, demodulated."""
+    period = source.settings.frame_period * 1e-4
+    return (decode(source, scene_exposure(source, i * period, i))[0] for i in range(count))
+
+
 def _learned(frames: int = 6):
     """A model learned on the conveyor's first frames, the last frame and the true belt."""
     source = open_scene("conveyor", 0)
-    period = source.settings.frame_period * 1e-4
     model = None
-    for i in range(frames):
-        frame = decode(source, scene_exposure(source, i * period, i))[0]
+    for frame in _frames(source, frames):
         noise = range_noise(frame, 0.003)
         model = model or BackgroundModel(frame.shape)
         model.learn(frame, noise, np.zeros((0, 3)), 0.05)
@@ -111,8 +115,7 @@ def test_a_running_belt_whose_width_is_not_known_is_held_over_its_plane(running)
     belt = dataclasses.replace(source.belt.geometry, width_m=None)
     prior = known_speed_prior(KnownBelt(belt, source.belt.speed_mps, "scene")) if running else None
     tracker = Tracker(belt=belt)
-    period = source.settings.frame_period * 1e-4
-    frames = (decode(source, scene_exposure(source, i * period, i))[0] for i in range(40))
+    frames = _frames(source, 40)
     for frame in frames:
         tracker.update(frame, prior)
         if tracker.background is not None and tracker.background.ready:

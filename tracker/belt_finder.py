@@ -1524,7 +1524,7 @@ class BeltFinder:
 @dataclass
 class _EdgeSums:
     """Per pixel, over the frames: its heights where it read near the belt (a histogram, for
-    their quantiles), how often it read well above or below it, and its mean height and plane
+    their median), how often it read well above or below it, and its mean height and plane
     position in each case (for the width)."""
 
     frames: int
@@ -1577,12 +1577,12 @@ class _EdgeSums:
         flat = self.near.reshape(self.NEAR_BINS, -1)
         flat[bins, at] += np.uint16(1)  # one reading per pixel: no repeated index
 
-    def near_quantile(self, share: float) -> F64:
-        """Each pixel's `share` quantile of its heights read near the belt (to the histogram's
-        2.5 mm; NaN under 3 readings)."""
+    def near_median(self) -> F64:
+        """Each pixel's median height of its readings near the belt (to the histogram's 2.5
+        mm; NaN under 3 readings)."""
         n = self.counts[0]
         cum = np.cumsum(self.near, axis=0, dtype=np.int64)
-        k = np.argmax(cum >= np.maximum(share * n, 1), axis=0)  # the bin holding that reading
+        k = np.argmax(cum >= np.maximum(0.5 * n, 1), axis=0)  # the bin holding the middle one
         step = 2 * self.NEAR_M / self.NEAR_BINS
         return np.where(n >= 3, -self.NEAR_M + (k + 0.5) * step, np.nan)
 
@@ -1591,7 +1591,7 @@ class _EdgeSums:
         near_n, up_n, down_n = self.counts
         seen = self.valid > 0
         with np.errstate(invalid="ignore", divide="ignore"):
-            median = self.near_quantile(0.5)
+            median = self.near_median()
             uv = self.sums[0] / near_n[..., None]
             steady_up = seen & (up_n >= 0.8 * self.valid)
             up = np.where(steady_up, self.heights[1] / up_n, np.nan)
