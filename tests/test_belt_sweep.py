@@ -91,6 +91,19 @@ def test_a_layer_of_tops_that_went_over_the_belt_is_not_the_belt():
     assert choose_swept([belt, tops], pixels, SweepParams(max_shared=1.0)) is tops
 
 
+def test_a_far_surface_read_near_by_its_wrapped_phase_is_not_swept():
+    # the floor's far pixels lie about the unambiguous range out: noise throws their phase
+    # round and back, so by turns they read the floor and a point 10 cm from the camera.
+    # Nothing stands that high on a layer; before a box came by, such a floor outscored the
+    # belt (line 1783)
+    h = _line(samples=30)
+    flicker = np.random.default_rng(4).random((30, 100)) < 0.3
+    h[:, :100][flicker] = -0.1
+    floor, belt, _ = _score(h, [FLOOR, BELT, TOP])
+    assert floor.swept == 0
+    assert choose_swept([floor, belt], 300, SweepParams()) is belt
+
+
 def test_noise_alone_sweeps_nothing():
     h = _line()
     h[:, 100:] = BELT + np.random.default_rng(1).normal(0, 0.01, h[:, 100:].shape)

@@ -15,10 +15,12 @@ can score high at steep tilts, never a layer above the belt) — unless the best
 pixels were seen on the nearer one too: then the nearer one is a layer of tops that went over
 the best (a big box, followed by a taller one, swept and never showed the belt in the first
 second of a line that starts full), and the best is the belt. Heights are 3×3 medians, so
-that a pixel's noise or a wrapped far reading does not pass for something going over it, and
-above or below is judged against the median's noise: against one reading's, on a loud line
-the belt seen 13 cm below a layer of box tops did not count as below it, and those tops were
-taken for the belt.
+that a pixel's noise or a wrapped far reading does not pass for something going over it;
+nor does a reading nearer the camera than anything on a layer can stand (`TALLEST_SHARE` of
+the camera's height over it): beyond the unambiguous range the floor's noise throws its phase
+round and back, and it flickers between itself and a point by the camera. Above or below is
+judged against the median's noise: against one reading's, on a loud line the belt seen 13 cm
+below a layer of box tops did not count as below it, and those tops were taken for the belt.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ import numpy as np
 
 from tofcut._types import F32, F64, B
 from tofcut.tracker import belt_sweep_kernels, stats_kernels
-from tofcut.tracker.background import MEDIAN_SHARES
+from tofcut.tracker.background import MEDIAN_SHARES, TALLEST_SHARE
 from tofcut.tracker.errors import SegmentError
 
 INVALID = -1e3
@@ -112,8 +114,12 @@ def swept_layers(
     noise and on-plane band."""
     # the heights are 3×3 medians: their noise is a share of one reading's
     reach = np.maximum(np.float32(3.0 * MEDIAN_SHARES[1]) * sigma, np.float32(params.above_m))
+    offsets = np.asarray(layers, np.float64)
+    # nearer the camera than anything on a layer can stand: a far surface read near because
+    # its phase wrapped round (it flickers there and back with the noise), not a sweep
+    tallest = TALLEST_SHARE * np.maximum(-offsets, 0.0)
     swept, on, squares, shared = belt_sweep_kernels.sweep_scores(
-        heights, ok, reach, band, np.asarray(layers, np.float64), params.min_times
+        heights, ok, reach, band, offsets, tallest, params.min_times
     )
     out = []
     for k, off in enumerate(layers):
