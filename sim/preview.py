@@ -1,6 +1,9 @@
-"""A picture of a scene for people: decoded intensity, range and truth labels side by side."""
+"""A scene's frames decoded as a host would see them, and a picture of a scene for people:
+decoded intensity, range and truth labels side by side."""
 
 from __future__ import annotations
+
+from collections.abc import Iterator
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -36,6 +39,14 @@ def decode(source: SceneSource, exposure: Exposure) -> tuple[Frame, FrameTruth]:
     )  # fmt: skip
     raw = RawFrame(header=header, taps=rendered.taps, wire=b"", host_time_ns=0)
     return demodulate(raw, Optics.from_calibration(calib)), rendered.truth
+
+
+def decoded_frames(source: SceneSource, count: int) -> Iterator[tuple[Frame, FrameTruth]]:
+    """The scene's first `count` frames at its frame rate, each decoded (`decode`) with its
+    truth."""
+    period = source.settings.frame_period * 1e-4
+    for i in range(count):
+        yield decode(source, scene_exposure(source, i * period, i))
 
 
 def _gray(values: F64, lo: float, hi: float) -> U8:

@@ -14,7 +14,7 @@ import pytest
 from tofcut.driver.belt import KnownBelt
 from tofcut.driver.conveyor.config import load_conveyor_config
 from tofcut.sim import open_scene
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decoded_frames
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tools.cli import main
@@ -126,9 +126,7 @@ def _source(case: Case, seed: int = 0) -> SceneSource:
 
 def _frames(source: SceneSource, count: int = 1000):
     """The scene's frames as the driver decodes them (no metadata: frames only)."""
-    period = source.settings.frame_period * 1e-4
-    for i in range(count):
-        yield decode(source, scene_exposure(source, i * period, i))[0]
+    return (frame for frame, _ in decoded_frames(source, count))
 
 
 # --- the finder on scenes -------------------------------------------------------------------

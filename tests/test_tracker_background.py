@@ -11,7 +11,7 @@ import pytest
 
 from tofcut.driver.belt import KnownBelt
 from tofcut.sim.catalog import open_scene
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decoded_frames
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import known_speed_prior
 from tofcut.tracker.noise import range_noise
@@ -20,8 +20,7 @@ from tofcut.tracker.tracker import Tracker
 
 def _frames(source, count: int):
     """The first `count` frames of an emulated scene, demodulated."""
-    period = source.settings.frame_period * 1e-4
-    return (decode(source, scene_exposure(source, i * period, i))[0] for i in range(count))
+    return (frame for frame, _ in decoded_frames(source, count))
 
 
 def _learned(frames: int = 6):

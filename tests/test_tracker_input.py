@@ -10,7 +10,7 @@ import pytest
 
 from tofcut.driver.errors import TofcutError
 from tofcut.sim.catalog import open_scene
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decoded_frames
 from tofcut.tracker import compiled
 from tofcut.tracker.background import BackgroundParams
 from tofcut.tracker.motion import MotionParams
@@ -19,8 +19,7 @@ from tofcut.tracker.tracker import Tracker, TrackerParams
 
 def _frames(n: int):
     source = open_scene("conveyor", 0)
-    period = source.settings.frame_period * 1e-4
-    return source, [decode(source, scene_exposure(source, i * period, i))[0] for i in range(n)]
+    return source, [frame for frame, _ in decoded_frames(source, n)]
 
 
 def test_a_frame_of_another_size_mid_run_is_a_one_line_error():

@@ -16,7 +16,7 @@ from hypothesis.extra import numpy as hnp
 
 from tofcut.sim import open_scene
 from tofcut.sim.crowd import crowd_source
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decode, decoded_frames, scene_exposure
 from tofcut.tracker import (
     compiled,
     components_kernels,
@@ -52,10 +52,8 @@ def _same_run(source, frames):
     # argument types mid-stream
     warm = {name: list(f.signatures) for name, f in _kernels().items()}
     assert len(warm) >= 12
-    period = source.settings.frame_period * 1e-4
     tracked = 0
-    for i in range(frames):
-        frame, _ = decode(source, scene_exposure(source, i * period, i))
+    for i, (frame, _) in enumerate(decoded_frames(source, frames)):
         got, want = fast.update(frame, prior), reference.update(frame, prior)
         np.testing.assert_array_equal(got.labels, want.labels, err_msg=f"frame {i}")
         assert [t.id for t in got.tracks] == [t.id for t in want.tracks], i

@@ -7,15 +7,14 @@ import pytest
 from scipy import ndimage
 
 from tofcut.sim import open_scene
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decoded_frames
 from tofcut.tracker.noise import range_noise
 from tofcut.tracker.tracker import Tracker, TrackerParams
 
 
 def _frames(name: str, count: int):
     src = open_scene(name, 0)
-    period = src.settings.frame_period * 1e-4
-    return src, [decode(src, scene_exposure(src, i * period, i)) for i in range(count)]
+    return src, list(decoded_frames(src, count))
 
 
 @pytest.mark.parametrize("name", ["conveyor", "person"])

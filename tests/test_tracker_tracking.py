@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tofcut.sim import open_scene
-from tofcut.sim.preview import decode, scene_exposure
+from tofcut.sim.preview import decode, decoded_frames, scene_exposure
 from tofcut.tools.cli import main
 from tofcut.tools.pipeline.run import LiveFeed
 from tofcut.tracker.multicut import PottsProblem, solve_binary, solve_potts
@@ -99,10 +99,8 @@ def _score_run(name, frames):
     b = src.belt
     tracker = Tracker(belt=b.geometry)
     prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
-    period = src.settings.frame_period * 1e-4
     tracks, masks, truths = {}, {}, []
-    for i in range(frames):
-        frame, truth = decode(src, scene_exposure(src, i * period, i))
+    for i, (frame, truth) in enumerate(decoded_frames(src, frames)):
         out = tracker.update(frame, prior)
         tracks[i] = [t.to_json() for t in out.tracks if t.visible]
         masks[i] = out.labels
@@ -248,10 +246,8 @@ def test_two_touching_boxes_coming_into_view_together_get_a_track_each(side_by_s
     from tofcut.tracker.belt_prior import VelocityPrior
 
     prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
-    period = src.settings.frame_period * 1e-4
-    for i in range(200):
-        frame, truth = decode(src, scene_exposure(src, i * period, i))
-        out = tracker.update(frame, prior)
+    for frame, seen in decoded_frames(src, 200):
+        out, truth = tracker.update(frame, prior), seen
     owners = set()
     for obj in truth.objects:  # both wholly in view by now
         on = out.labels[truth.labels == obj.id]
@@ -270,10 +266,8 @@ def test_a_seeded_person_is_followed_under_one_id():
     src = open_scene("person", 0)
     tracker = Tracker(TrackerParams(rigid=False))
     tracker.add_target(pixel=src.target.seed_pixel)
-    period = src.settings.frame_period * 1e-4
     ious = []
-    for i in range(150):
-        frame, truth = decode(src, scene_exposure(src, i * period, i))
+    for i, (frame, truth) in enumerate(decoded_frames(src, 150)):
         out = tracker.update(frame)
         assert [t.id for t in out.tracks] == [1]
         assert out.tracks[0].visible
@@ -296,11 +290,9 @@ def test_what_stays_put_while_the_belt_runs_becomes_scenery(speed_known):
     b = src.belt
     tracker = Tracker(belt=b.geometry)
     prior = VelocityPrior(b.geometry.direction * b.speed_mps, np.eye(3) * 0.02**2, True)
-    period = src.settings.frame_period * 1e-4
     ended = []
-    for i in range(200 if speed_known else 300):
-        frame, truth = decode(src, scene_exposure(src, i * period, i))
-        out = tracker.update(frame, prior if speed_known else None)
+    for frame, seen in decoded_frames(src, 200 if speed_known else 300):
+        out, truth = tracker.update(frame, prior if speed_known else None), seen
         ended += out.ended
     assert (tracker.roster.seen_pace > 0) != speed_known
     gantry = next(o for o in truth.objects if o.name == "gantry")
