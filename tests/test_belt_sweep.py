@@ -92,10 +92,10 @@ def test_a_layer_of_tops_that_went_over_the_belt_is_not_the_belt():
 
 
 def test_a_far_surface_read_near_by_its_wrapped_phase_is_not_swept():
-    # the floor's far pixels lie about the unambiguous range out: noise throws their phase
-    # round and back, so by turns they read the floor and a point 10 cm from the camera.
-    # Nothing stands that high on a layer; before a box came by, such a floor outscored the
-    # belt (line 1783)
+    # the floor's far pixels lie near the unambiguous range: noise throws their phase round
+    # and back, so by turns they read the floor and a point 10 cm from the camera. Nothing
+    # stands that high on a layer; before a box came by, such a floor outscored the belt
+    # (line 1783)
     h = _line(samples=30)
     flicker = np.random.default_rng(4).random((30, 100)) < 0.3
     h[:, :100][flicker] = -0.1
