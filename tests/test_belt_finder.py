@@ -11,14 +11,22 @@ from dataclasses import FrozenInstanceError, dataclass, replace
 import numpy as np
 import pytest
 
-from tofcut.driver.belt import KnownBelt
+from tofcut.driver.belt import BeltGeometry, KnownBelt
 from tofcut.driver.conveyor.config import load_conveyor_config
+from tofcut.driver.frames import Frame
+from tofcut.driver.intrinsics import Intrinsics
+from tofcut.driver.protocol import unambiguous_range_m
 from tofcut.sim import open_scene
 from tofcut.sim.preview import decoded_frames
 from tofcut.sim.renderer import SceneSource
 from tofcut.sim.scene_file import parse_scene
 from tofcut.tools.cli import main
-from tofcut.tools.commands.calibrate import CalibrationError, map_document
+from tofcut.tools.commands.calibrate import (
+    CalibrationError,
+    map_document,
+    wrapped_lines,
+    wrapped_share,
+)
 from tofcut.tools.evaluation.belt_check import BARS, Errors, errors
 from tofcut.tracker.belt_finder import (
     BeltEstimate,
@@ -522,6 +530,7 @@ def test_calibrate_writes_a_map_and_extends_one_without_losing_its_tables(tmp_pa
     out = capsys.readouterr().out
     assert "plane: normal" in out
     assert "travel: direction" in out
+    assert "unambiguous" not in out  # the conveyor's belt is 1.4-1.9 m away
     assert f"wrote {new}" in out
     assert "# speed found" in new.read_text()
     config = load_conveyor_config(new)
@@ -545,6 +554,43 @@ def test_calibrate_writes_a_map_and_extends_one_without_losing_its_tables(tmp_pa
     assert extended.belt is not None
     assert errors(KnownBelt(extended.belt, 0.25), truth).direction_deg <= BARS["direction_deg"]
     assert extended.belt.width_m == pytest.approx(config.belt.width_m, abs=0.01)
+
+
+PINHOLE = Intrinsics(width=64, height=48, fx=40.0, fy=40.0, cx=31.5, cy=23.5)
+
+
+def _slanted_belt_frame(mod_code: int) -> tuple[BeltGeometry, Frame]:
+    """A belt 2 m wide, 2.5 m below the camera, seen 55° from its normal (3.7–6.4 m away),
+    read as a camera of that modulation reads it: ranges past the unambiguous range wrapped
+    round."""
+    tilt = math.radians(55)
+    normal = np.array([0.0, -math.sin(tilt), -math.cos(tilt)])
+    centre = np.array([0.0, 0.0, 2.5 / math.cos(tilt)])  # where the optical axis meets it
+    belt = BeltGeometry(centre, np.array([1.0, 0, 0]), normal, width_m=2.0)
+    true = belt.range_along(PINHOLE.rays())
+    limit = unambiguous_range_m(mod_code)
+    read = np.mod(np.where(np.isfinite(true), true, 1.0), limit)
+    frame = Frame.from_arrays(time_s=0.0, range_m=read, intrinsics=PINHOLE)
+    return belt, replace(frame, header=replace(frame.header, mod_code=mod_code))
+
+
+def test_calibrate_says_how_much_of_the_belt_lies_past_the_unambiguous_range():
+    # 30 MHz reads to 5.0 m: the far part of a belt seen at a slant reads 5.0 m too near
+    belt, frame = _slanted_belt_frame(mod_code=1)
+    true = belt.range_along(PINHOLE.rays())
+    far = float(np.mean(true[np.isfinite(true)] > unambiguous_range_m(1)))
+    assert 0.1 < far < 0.9
+    assert wrapped_share(belt, frame) == pytest.approx(far, abs=0.01)
+    (line,) = wrapped_lines(belt, frame)
+    assert (
+        f"{far:.0%} of the belt in view lies past the unambiguous range (5.00 m at 30 MHz)" in line
+    )
+    # 15 MHz reads to 10 m: all of it is seen where it is, and nothing is said
+    belt, frame = _slanted_belt_frame(mod_code=6)
+    assert wrapped_share(belt, frame) == 0
+    assert wrapped_lines(belt, frame) == []
+    # a frame from another camera has no modulation to judge
+    assert wrapped_lines(belt, replace(frame, header=replace(frame.header, mod_code=0))) == []
 
 
 def test_a_map_without_a_travel_direction_is_refused():

@@ -11,16 +11,23 @@ from __future__ import annotations
 import argparse
 import os
 import tomllib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.camera import Camera
 from tofcut.driver.conveyor.config import parse_conveyor_config
 from tofcut.driver.errors import ConfigError, TofcutError
+from tofcut.driver.frames import Frame
+from tofcut.driver.protocol import MOD_FREQ_MHZ, unambiguous_range_m
 from tofcut.driver.toml_writer import dumps
 from tofcut.tools.commands.options import add_camera_options, config_from_args
 from tofcut.tools.pipeline.sources import SourceError, SourceSpec, configure, open_source
 from tofcut.tracker.belt_finder import BeltEstimate, find_belt
+from tofcut.tracker.noise import range_noise
 
 DEFAULT_SECONDS = 20.0
 
@@ -80,10 +87,20 @@ def run(args: argparse.Namespace) -> int:
     try:
         if isinstance(device, Camera):
             configure(opened, config_from_args(args, device.config))
-        estimate = find_belt(device.frames(), args.seconds)
+        last: list[Frame] = []
+
+        def frames() -> Iterator[Frame]:
+            for frame in device.frames():
+                last[:] = [frame]
+                yield frame
+
+        estimate = find_belt(frames(), args.seconds)
     finally:
         opened.close()
-    for line in report(estimate, str(args.source)):
+    lines = report(estimate, str(args.source))
+    if estimate.belt is not None and last:
+        lines += wrapped_lines(estimate.belt.geometry, last[0])
+    for line in lines:
         print(line)
     if estimate.belt is None:
         raise CalibrationError(f"no belt plane stands out in {estimate.frames} frames")
@@ -126,6 +143,53 @@ def report(estimate: BeltEstimate, source: str) -> list[str]:
         lines.append("  width: not known (both edges must be in view, and the travel known)")
     lines.append(f"  {estimate.describe()}")
     return lines
+
+
+WRAP_SIGMAS = 3.0
+"""A pixel reads the belt, or the belt a whole unambiguous range too near, within this many
+of its range noise sigmas..."""
+WRAP_REACH_M = 0.5
+"""...where that is at most this much (louder pixels could be read either way)."""
+WRAP_MIN_SHARE = 0.01
+"""Less of the belt than this read too near is not worth a line (a flying pixel or two)."""
+
+
+def wrapped_share(belt: BeltGeometry, frame: Frame) -> float:
+    """Of the pixels that read the belt (along their rays, within its width where known), the
+    share that read it whole unambiguous ranges too near: it lies past the range the
+    camera's modulation frequency can tell, and its phase wrapped round."""
+    limit = unambiguous_range_m(frame.header.mod_code)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays = frame.xyz / frame.range[..., None]
+    has = (frame.range > 0) & np.isfinite(rays).all(axis=-1)
+    along = belt.range_along(rays[has])
+    reach = WRAP_SIGMAS * range_noise(frame, 0.001)[has]
+    read = frame.range[has]
+    usable = np.isfinite(along) & (reach <= WRAP_REACH_M)
+    with np.errstate(invalid="ignore"):
+        seen = usable & (np.abs(read - along) < reach)
+        wrapped = usable & (along > limit) & (np.abs(read - np.mod(along, limit)) < reach)
+    total = np.count_nonzero(seen | wrapped)
+    return float(np.count_nonzero(wrapped) / total) if total else 0.0
+
+
+def wrapped_lines(belt: BeltGeometry, frame: Frame) -> list[str]:
+    """A line saying how much of the belt lies past the unambiguous range, if any does
+    (`WRAP_MIN_SHARE`): there the camera reads the belt, and what rides on it, a whole range
+    too near, which no tracking undoes."""
+    code = frame.header.mod_code
+    if code not in MOD_FREQ_MHZ:
+        return []  # not a SwissRanger's frame: no modulation to judge
+    share = wrapped_share(belt, frame)
+    if share < WRAP_MIN_SHARE:
+        return []
+    limit = unambiguous_range_m(code)
+    return [
+        f"  range: {share:.0%} of the belt in view lies past the unambiguous range "
+        f"({limit:.2f} m at {MOD_FREQ_MHZ[code]:g} MHz), read {limit:.2f} m (or a multiple) "
+        "too near, and so is what rides there; a lower modulation frequency or a nearer "
+        "camera sees it whole"
+    ]
 
 
 def map_document(estimate: BeltEstimate, existing: dict[str, Any]) -> dict[str, Any]:
