@@ -64,6 +64,14 @@ class Frame(_Stamped):
         """(H, W)."""
         return (self.header.height, self.header.width)
 
+    @property
+    def rays(self) -> npt.NDArray[np.float64]:
+        """(H, W, 3) each pixel's unit ray, its point over its range (not finite where the
+        range is 0): what a surface's range along the pixel is measured on."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rays: npt.NDArray[np.float64] = self.xyz / self.range[..., None]
+        return rays
+
     @classmethod
     def from_arrays(
         cls,

@@ -81,8 +81,7 @@ def test_what_was_taken_in_as_scenery_is_not_covered_by_a_belt_laid_again():
 
 def test_over_a_running_belt_the_scenery_is_held_to_what_it_was_when_the_belt_was_laid():
     model, frame, noise, belt = _learned()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        surface = belt.range_along(frame.xyz / frame.range[..., None])
+    surface = belt.range_along(frame.rays)
     model.clear_belt(frame, belt)
     laid = model.range.copy()
     rows, cols = np.nonzero(model.known & np.isfinite(surface))
@@ -122,8 +121,7 @@ def test_a_running_belt_whose_width_is_not_known_is_held_over_its_plane(running)
     model = tracker.background
     assert model is not None
     assert model.ready
-    with np.errstate(invalid="ignore", divide="ignore"):
-        surface = belt.range_along(frame.xyz / frame.range[..., None])
+    surface = belt.range_along(frame.rays)
     rows, cols = np.nonzero(model.known & np.isfinite(surface))
     took = rows[100:300], cols[100:300]
     laid = model.range[took].copy()
@@ -154,8 +152,7 @@ def test_an_object_in_front_of_scenery_whose_phase_wrapped_round_stands_out():
     """Past the belt the floor can lie beyond the camera's unambiguous range: it reads near.
     An object on the belt in front of it reads farther than that scenery, not nearer."""
     model, frame, noise, belt = _learned()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rays = frame.xyz / frame.range[..., None]
+    rays = frame.rays
     surface = belt.range_along(rays)
     over = model.known & frame.valid & np.isfinite(surface)
     rows = np.nonzero(over.any(axis=1))[0]
@@ -194,8 +191,7 @@ def test_scenery_going_on_from_a_wrapped_far_surface_is_not_laid_under_the_belt(
     from heights no object reaches down to ones it could: the lower part goes on from the
     higher without a step, and is the same floor, not something standing on the belt."""
     model, frame, _, belt = _learned()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rays = frame.xyz / frame.range[..., None]
+    rays = frame.rays
     over = model.known & frame.valid & np.isfinite(belt.range_along(rays))
     rows = np.nonzero(over.any(axis=1))[0]
     far = over.copy()

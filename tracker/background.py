@@ -196,8 +196,7 @@ class BackgroundModel:
         back = self._laid & (self.range == self._laid_range)
         self.range[back] = self._unlaid_range[back]
         self.sigma[back] = self._unlaid_sigma[back]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rays = frame.xyz / frame.range[..., None]
+        rays = frame.rays
         surface = belt.range_along(rays)
         points = rays * self.range[..., None]
         on = self.known & np.isfinite(surface) & belt.over_belt(points)
@@ -243,8 +242,7 @@ class BackgroundModel:
         """The belt's surface along each pixel's ray, for `hold_belt`: found once per belt
         (again while it is nowhere)."""
         if belt is not self._held_for or np.isnan(self._held_surface).all():
-            with np.errstate(invalid="ignore", divide="ignore"):
-                surface = belt.range_along(frame.xyz / frame.range[..., None])
+            surface = belt.range_along(frame.rays)
             self._held_for = belt
             self._held_surface = np.where(np.isfinite(surface), surface, np.nan)
 

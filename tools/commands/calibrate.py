@@ -159,8 +159,7 @@ def wrapped_share(belt: BeltGeometry, frame: Frame) -> float:
     share that read it whole unambiguous ranges too near: it lies past the range the
     camera's modulation frequency can tell, and its phase wrapped round."""
     limit = unambiguous_range_m(frame.header.mod_code)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rays = frame.xyz / frame.range[..., None]
+    rays = frame.rays
     has = (frame.range > 0) & np.isfinite(rays).all(axis=-1)
     along = belt.range_along(rays[has])
     reach = WRAP_SIGMAS * range_noise(frame, 0.001)[has]

@@ -24,9 +24,7 @@ def belt_noise(capture: Path, truth: FrameTruth, belt: BeltGeometry) -> float | 
     show the bare belt (from the truth: no object, true range on the belt's surface); None
     where no pixel does."""
     frame = next(iter(CaptureReader(capture).frames()))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rays = frame.xyz / frame.range[..., None]
-    surface = belt.range_along(rays)
+    surface = belt.range_along(frame.rays)
     on = (
         frame.valid
         & np.isfinite(surface)
