@@ -223,6 +223,30 @@ def test_pieces_are_numbered_as_scipy_labels_them():
     )
 
 
+@settings(max_examples=200, deadline=None)
+@given(
+    hnp.arrays(
+        np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 3)
+    )
+)
+def test_each_labels_regions_are_scipys_8_connected_pieces_with_their_sizes(labels):
+    from scipy import ndimage
+
+    regions = components_kernels.label_regions(labels)
+    firsts = np.unique(regions.ravel(), return_index=True)[1][1:]  # each region's first pixel
+    np.testing.assert_array_equal(firsts, np.sort(firsts))  # numbered in that order
+    assert (regions > 0).sum() == (labels > 0).sum()
+    for k in np.unique(labels[labels > 0]).tolist():
+        want, n = ndimage.label(labels == k, np.ones((3, 3), bool))
+        got = regions[labels == k]
+        # the same partition: one region for each of scipy's pieces, and the other way
+        pairs = np.unique(np.stack([want[labels == k], got]), axis=1)
+        assert pairs.shape[1] == n == np.unique(got).size
+    owner, sizes = components_kernels.region_sizes(labels)
+    np.testing.assert_array_equal(sizes, np.bincount(regions.ravel()) * (np.arange(sizes.size) > 0))
+    np.testing.assert_array_equal(owner[regions[labels > 0]], labels[labels > 0])
+
+
 def test_point_stats_are_numpys_mean_min_and_max():
     rng = np.random.default_rng(8)
     xyz = rng.normal(size=(144, 176, 3)) * [1e-3, 1.0, 1e3] + 2.0

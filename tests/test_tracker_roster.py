@@ -9,6 +9,9 @@ import numpy as np
 import pytest
 
 from tofcut.driver.belt import BeltGeometry
+from tofcut.driver.frames import Frame
+from tofcut.driver.intrinsics import Intrinsics
+from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.live_track import LiveTrack
 from tofcut.tracker.params import TrackerParams
 from tofcut.tracker.roster import Roster, _beside, _two_objects, still_time
@@ -243,3 +246,97 @@ def test_a_view_growing_at_the_border_of_a_slow_belt_does_not_stay_put(growing):
         track.see(points, (slice(0, 5), slice(0, len(xs))), True, None)
         stayed.append(track.stays_put(dt, hold_s))
     assert any(stayed) == (not growing)
+
+
+# --- a track that holds two objects apart ----------------------------------------------------
+
+
+def _view(tops: list[tuple[int, float]], between_m: float = BELT_RANGE_M) -> Frame:
+    """A 20×40 view of the belt straight below (2 cm a pixel), with 10×10 tops standing up
+    from it (first column, height), and the range `between_m` over columns 15–17."""
+    depth = np.full((20, 40), BELT_RANGE_M)
+    depth[:, 15:18] = between_m
+    for col, height in tops:
+        depth[5:15, col : col + 10] = BELT_RANGE_M - height
+    return Frame.from_arrays(time_s=0.0, depth_m=depth, intrinsics=_LENS)
+
+
+_LENS = Intrinsics(width=40, height=20, fx=100.0, fy=100.0, cx=19.5, cy=9.5)
+
+
+def _scenery(between_m: float = BELT_RANGE_M) -> BackgroundModel:
+    """The empty view of `_view`, learned."""
+    model = BackgroundModel((20, 40))
+    empty, noise = _view([], between_m), np.full((20, 40), 0.005)
+    while not model.learn(empty, noise, np.zeros((0, 3)), 0.15):
+        pass
+    return model
+
+
+def _one_track_on(frame: Frame, mask: np.ndarray) -> tuple[Roster, np.ndarray]:
+    """A roster whose one track (id 1) holds `mask`, and the labels."""
+    roster = Tracker(TrackerParams()).roster
+    roster._start(frame.xyz[mask], np.eye(3) * 0.01)
+    return roster, mask.astype(np.uint16)
+
+
+@pytest.mark.parametrize(
+    ("between_m", "scenery_m", "parted"),
+    [
+        (BELT_RANGE_M, BELT_RANGE_M, True),  # the belt seen between them: two objects apart
+        (1.5, BELT_RANGE_M, False),  # something in front: an occluder
+        (1.5, 1.5, False),  # a gantry: scenery, but in front
+        (BELT_RANGE_M - 0.2, BELT_RANGE_M, False),  # the first top goes on: the cut missed it
+    ],
+)
+def test_a_track_holding_two_objects_with_the_belt_between_is_parted(between_m, scenery_m, parted):
+    # two boxes 6 cm apart, both in one track's mask (the cut gave it the second as it came
+    # into view); the range `between_m` read between them, where the scenery is `scenery_m`
+    frame = _view([(5, 0.2), (18, 0.1)], between_m)
+    left, right = np.zeros((20, 40), bool), np.zeros((20, 40), bool)
+    left[5:15, 5:15], right[5:15, 18:28] = True, True
+    roster, labels = _one_track_on(frame, left | right)
+    split_frames = roster.params.split_frames
+    bg = _scenery(scenery_m)
+    seen, noise = bg.seen_range(frame), np.full((20, 40), 0.005)
+    born = [roster._part(frame, labels, noise, _belt(None), bg, seen) for _ in range(split_frames)]
+    assert born[:-1] == [[]] * (split_frames - 1)  # not before it held both that long
+    if parted:
+        assert born[-1] == [2]
+        assert (labels[left] == 1).all()
+        assert (labels[right] == 2).all()
+        new = roster.tracks[1]
+        assert np.allclose(new.filter.position, frame.xyz[right].mean(axis=0))
+        assert np.allclose(roster.tracks[0].filter.position, frame.xyz[left].mean(axis=0))
+    else:
+        assert born[-1] == []
+        assert len(roster.tracks) == 1
+        assert (labels[left | right] == 1).all()
+
+
+def test_a_small_part_of_a_mask_is_not_an_object_of_its_own():
+    frame = _view([(5, 0.2), (18, 0.1)])
+    mask = np.zeros((20, 40), bool)
+    mask[5:15, 5:15] = True
+    mask[8:12, 18:22] = True  # 16 pixels: fewer than `min_pixels`
+    roster, labels = _one_track_on(frame, mask)
+    bg = _scenery()
+    seen, noise = bg.seen_range(frame), np.full((20, 40), 0.005)
+    assert not any(roster._part(frame, labels, noise, _belt(None), bg, seen) for _ in range(5))
+
+
+def test_a_part_another_track_follows_goes_to_that_track():
+    # the cut gave the second box to the first box's track, though a track follows it
+    frame = _view([(5, 0.2), (18, 0.1)])
+    left, right = np.zeros((20, 40), bool), np.zeros((20, 40), bool)
+    left[5:15, 5:15], right[5:15, 18:28] = True, True
+    roster, labels = _one_track_on(frame, left | right)
+    roster._start(frame.xyz[right], np.eye(3) * 0.01)  # track 2, left nothing this frame
+    bg = _scenery()
+    seen, noise = bg.seen_range(frame), np.full((20, 40), 0.005)
+    for _ in range(roster.params.split_frames):
+        born = roster._part(frame, labels, noise, _belt(None), bg, seen)
+    assert born == []
+    assert [t.id for t in roster.tracks] == [1, 2]
+    assert (labels[left] == 1).all()
+    assert (labels[right] == 2).all()

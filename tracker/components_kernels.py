@@ -1,6 +1,7 @@
 """Connected components, compiled (see `tofcut.tracker.compiled`): a union-find forest, the
-4-connected pieces of a mask (as `scipy.ndimage.label`) and the connected parts of a graph
-(as scipy's `connected_components`). The paper's cut contracts its graph with the same
+4-connected pieces of a mask (as `scipy.ndimage.label`), the 8-connected parts of every
+track's mask at once, and the connected parts of a graph (as scipy's
+`connected_components`). The paper's cut contracts its graph with the same
 union-find (`tofcut.tracker.paper.contraction`).
 """
 
@@ -8,9 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from tofcut._types import I32, I64, B
+from tofcut._types import I32, I64, U16, B
 from tofcut.tracker.box_kernels import pixels_of
-from tofcut.tracker.compiled import B_2D, helper, kernel
+from tofcut.tracker.compiled import B_2D, U16_2D, helper, kernel
 
 
 @helper
@@ -67,6 +68,67 @@ def label_pieces(body: B) -> I32:
         v, u = at_v[i], at_u[i]
         out[v, u] = final[out[v, u]]
     return out
+
+
+@kernel((U16_2D,))
+def label_regions(labels: U16) -> I32:
+    """Each label's 8-connected regions: `scipy.ndimage.label(labels == k, EIGHT)` for every
+    k > 0 at once, numbered from 1 in the order of each region's first pixel in row-major
+    order (0 where `labels` is 0): each track's mask in its parts."""
+    h, w = labels.shape
+    out = np.zeros((h, w), np.int32)
+    parent = np.zeros(h * w + 1, np.int32)
+    n = 0  # regions so far
+    for v in range(h):
+        for u in range(w):
+            k = labels[v, u]
+            if k == 0:
+                continue
+            here = 0
+            # the neighbours gone over already: left, and the three above
+            for dv, du in ((0, -1), (-1, -1), (-1, 0), (-1, 1)):
+                vv, uu = v + dv, u + du
+                if vv < 0 or uu < 0 or uu >= w or labels[vv, uu] != k:
+                    continue
+                r = out[vv, uu]
+                if here == 0:
+                    here = r
+                else:
+                    a, b = root(parent, here), root(parent, r)
+                    if a != b:
+                        parent[max(a, b)] = min(a, b)  # a region's root is its first label
+            if here == 0:
+                n += 1
+                parent[n] = n
+                here = n
+            out[v, u] = here
+    final = number_sets(parent[: n + 1], 1, 1)
+    for v in range(h):
+        for u in range(w):
+            if out[v, u]:
+                out[v, u] = final[out[v, u]]
+    return out
+
+
+@kernel((U16_2D,))
+def region_sizes(labels: U16) -> tuple[I64, I64]:
+    """Of each label's 8-connected regions (`label_regions`), numbered from 1: the label each
+    belongs to and its pixels (entry 0 is no region)."""
+    regions = label_regions(labels)
+    h, w = labels.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            n = max(n, regions[v, u])
+    owner = np.zeros(n + 1, np.int64)
+    sizes = np.zeros(n + 1, np.int64)
+    for v in range(h):
+        for u in range(w):
+            r = regions[v, u]
+            if r:
+                owner[r] = labels[v, u]
+                sizes[r] += 1
+    return owner, sizes
 
 
 @helper

@@ -79,7 +79,9 @@ class LiveTrack:
         self.hidden_s = 0.0
         self.hidden_frames = 0
         self.split_frames = 0
-        """Frames running in which the track's mask held two surfaces."""
+        """Frames running in which the track's mask held two surfaces..."""
+        self.parted_frames = 0
+        """...or fell in two parts with the scenery seen between them."""
         self.anchor: F64 | None = None
         """Where the track has been seen staying, its view's size there, and for how long
         (`still_s`)."""

@@ -3,13 +3,14 @@
 Each frame, every track is measured from its mask (`LiveTrack.see`), grown by what stands
 out right beside it and goes on from its surface, any top it shows at the track's height (an
 object coming into view), or coasts unseen (`LiveTrack.coast`). What stands out and no track
-can claim, two frames running, becomes a new track. Rigid objects on a belt: a track holding
-two touching surfaces (a step apart, or two tops at different heights:
-`tofcut.tracker.tops`) for a few frames has them dealt out again (two objects that came into
-view as one), two tracks that meet at a convex edge with no step are faces of one object and
-become one, and a track that stays put while the belt runs becomes scenery; what lies beside
-a belt of known width, or flat on a belt laid anew, is no object. Targets the user gives are
-started from their seeds.
+can claim, two frames running, becomes a new track. Rigid objects: a track holding two
+touching surfaces (a step apart, or two tops at different heights: `tofcut.tracker.tops`),
+or two parts with the scenery seen between them, for a few frames has them dealt out again
+(two objects that came into view as one, or one the cut gave a track beside it), two tracks
+that meet at a convex edge with no step are faces of one object and become one, and a track
+that stays put while the belt runs becomes scenery; what lies beside a belt of known width,
+or flat on a belt laid anew, is no object. Targets the user gives are started from their
+seeds.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from scipy.optimize import linear_sum_assignment
 from tofcut._types import F64, I32, I64, U16, B
 from tofcut.driver.belt import BeltGeometry
 from tofcut.driver.frames import Frame
-from tofcut.tracker import frame_kernels, measure_kernels
+from tofcut.tracker import components_kernels, frame_kernels, measure_kernels
 from tofcut.tracker.background import BackgroundModel
 from tofcut.tracker.belt_prior import VelocityPrior
 from tofcut.tracker.cut import JointCut
@@ -183,6 +184,7 @@ class Roster:
         keep: list[LiveTrack] = []
         born = self._reconcile(frame, labels, noise, belt)
         ended += self._join(frame, labels, noise, belt)
+        born += self._part(frame, labels, noise, belt, background, seen)
         pieces = (
             self.pieces.loose(frame, labels, noise, background, belt, seen)
             if background.ready
@@ -390,6 +392,69 @@ class Roster:
             t.restart(pts, belt)
         return born
 
+    def _part(
+        self,
+        frame: Frame,
+        labels: U16,
+        noise: F64,
+        belt: BeltGeometry | None,
+        background: BackgroundModel,
+        seen: F64,
+    ) -> list[int]:
+        """Rigid objects: a track whose mask has fallen in parts, two of them large (each
+        `min_pixels` and `split_share` of it or `split_pixels`) with the scenery seen between
+        them (`_scenery_between`: not an occluder, nor a band of an object the cut missed),
+        for `split_frames` frames running, holds two objects apart (the cut gave it a second
+        object that came into view beside it, and its shape grew to hold both): its largest
+        part stays its own, each other large part goes to the track that can claim it
+        (`_claimant`: more of an object it follows) or becomes a new track, at its velocity.
+        Changes `labels`; the new tracks' ids."""
+        p = self.params
+        if not p.rigid or not self.tracks or not background.ready:
+            return []
+        parted = _parted(labels, p)
+        born = []
+        for t in list(self.tracks):
+            apart = np.zeros(0, np.int64)
+            if t.id < parted.size and parted[t.id]:
+                box = _box_of(labels == t.id)
+                parts, big = _large_parts(labels, box, t.id, p)
+                bg = background
+                nearer = np.where(
+                    frame.valid[box] & bg.known[box], bg.range[box] - seen[box], np.nan
+                )
+                apart = _scenery_between(
+                    parts, big, frame.range[box], nearer, bg.sigma[box], p.connect_m
+                )
+            t.parted_frames = t.parted_frames + 1 if apart.size else 0
+            if t.parted_frames < p.split_frames:
+                continue
+            t.parted_frames = 0
+            window = labels[box]
+            others = [o for o in self.tracks if o is not t]
+            for r in apart.tolist():
+                part = parts == r
+                pts = frame.xyz[box][part]
+                owner = self._claimant(others, pts, noise[box][part])
+                if owner is not None:  # more of an object another track follows
+                    window[part] = owner.id
+                    continue
+                shape = shape_of(pts, SHAPE_FLOOR_M, belt)
+                window[part] = self._start(pts, shape, t.filter.velocity)
+                born.append(int(window[part][0]))
+            t.restart(frame.xyz[labels == t.id], belt)
+        return born
+
+    def _claimant(self, tracks: list[LiveTrack], points: F64, noise: F64) -> LiveTrack | None:
+        """The track that can claim `points` (their median distance cost from it under what
+        a pixel could cost the background: `_detect`'s rule), the nearest if several."""
+        p = self.params
+        if not tracks:
+            return None
+        near = np.median(self.cut.distances(tracks, points, noise), axis=1)
+        k = int(np.argmin(near))
+        return tracks[k] if near[k] < (p.background_cap - p.object_cost) / p.beta else None
+
     def _continuing(
         self,
         frame: Frame,
@@ -585,12 +650,87 @@ def _box_of(mask: B) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
+def _least_part(pixels: I64 | int, p: TrackerParams) -> I64:
+    """The fewest pixels a part of a mask of `pixels` must hold to be an object of its own:
+    `min_pixels`, and `split_share` of the mask or `split_pixels`."""
+    least: I64 = np.maximum(p.min_pixels, np.minimum(p.split_share * pixels, p.split_pixels))
+    return least
+
+
+def _parted(labels: U16, p: TrackerParams) -> B:
+    """By track id, whether its mask is in two large parts or more (`_least_part`), all
+    tracks at once (`components_kernels.region_sizes`)."""
+    owner, sizes = components_kernels.region_sizes(labels)  # each region's track and size
+    pixels = np.bincount(owner, weights=sizes)  # each track's
+    large = sizes >= _least_part(pixels[owner], p)
+    large[0] = False
+    parted: B = np.bincount(owner[large]) >= 2
+    return parted
+
+
+def _large_parts(labels: U16, box: Box, track: int, p: TrackerParams) -> tuple[I32, I64]:
+    """A track's mask within its `box`, in 8-connected parts (numbered from 1, 0 elsewhere),
+    and the parts large enough to be an object of their own (`_least_part`)."""
+    parts, _ = ndimage.label(labels[box] == track, EIGHT)
+    sizes = np.bincount(parts.ravel())
+    sizes[0] = 0
+    return parts, np.nonzero(sizes >= _least_part(int(sizes.sum()), p))[0]
+
+
+def _scenery_between(
+    parts: I32, big: I64, ranges: F64, nearer: F64, sigma: F64, step_m: float
+) -> I64:
+    """Of a mask's `big` parts (numbered in `parts`), those apart from the largest with the
+    scenery seen between: the band of pixels along the shortest way across (`_behind`)
+    reads farther than both by `step_m` (`ranges`), and reads the scenery (`nearer`: how
+    far each pixel stands in front of it, NaN where not known; its median within the median
+    of the scenery's noise `sigma`). The belt between two objects is that; an occluder in
+    front (a gantry, part of the scenery too), or a band of an object's own surface the cut
+    missed, even a low one in loud noise, is not."""
+    sizes = np.bincount(parts.ravel())
+    first = int(big[np.argmax(sizes[big])])
+    home = parts == first
+    to_home = ndimage.distance_transform_edt(~home)
+    apart = []
+    for r in big.tolist():
+        if r == first:
+            continue
+        band = _behind(home, parts == r, to_home, ranges, step_m)
+        if band is None:
+            continue
+        read = band & np.isfinite(nearer)
+        if read.any() and np.median(nearer[read]) < np.median(sigma[read]):
+            apart.append(r)
+    return np.array(apart, np.int64)
+
+
+def _behind(home: B, there: B, to_home: F64, ranges: F64, step_m: float) -> B | None:
+    """The band of pixels along the shortest way from `home` to `there` (`to_home`: each
+    pixel's distance to `home`; neither's own pixels, within one pixel of the gap), if what
+    it reads (`ranges`) lies farther than both by `step_m` on the median: something behind
+    them is seen between them. None where it does not, or reads nothing."""
+    to_there = ndimage.distance_transform_edt(~there)
+    apart = to_home + to_there
+    gap = float(apart[there].min())
+    band = (apart <= gap + 1.0) & ~home & ~there
+    seen = ranges[band]
+    seen = seen[np.isfinite(seen)]
+    if seen.size == 0:
+        return None
+    near = max(
+        float(np.median(ranges[home & (to_there <= gap + 3)])),
+        float(np.median(ranges[there & (to_home <= gap + 3)])),
+    )
+    return band if float(np.median(seen)) > near + step_m else None
+
+
 def _two_objects(pieces: I32, surfaces: I64, mask: B, rng: F64, step_m: float) -> bool:
     """Whether a track's `mask` holds two objects: the largest of these pieces meets another
     of them within the mask (across the seam a 3D step leaves, or across a side face between
     them that noise breaks into specks), or another lies in a part of the mask that the
     scenery behind parts from it (the belt seen between them, `step_m` farther in range
-    than both). One object seen either side of an occluder has the occluder in front."""
+    than both: `_behind`). One object seen either side of an occluder has the occluder in
+    front."""
     box = _box_of(mask)
     inside, cut, ranges = mask[box], pieces[box], rng[box]
     parts, _ = ndimage.label(inside, EIGHT)
@@ -601,23 +741,10 @@ def _two_objects(pieces: I32, surfaces: I64, mask: B, rng: F64, step_m: float) -
     if (others & home).any():
         return True
     to_home = ndimage.distance_transform_edt(~home)
-    for part in np.unique(parts[others]).tolist():
-        there = parts == part
-        to_there = ndimage.distance_transform_edt(~there)
-        apart = to_home + to_there
-        gap = float(apart[there].min())
-        between = (apart <= gap + 1.0) & ~home & ~there
-        seen = ranges[between]
-        seen = seen[np.isfinite(seen)]
-        if seen.size == 0:
-            continue
-        near = max(
-            float(np.median(ranges[home & (to_there <= gap + 3)])),
-            float(np.median(ranges[there & (to_home <= gap + 3)])),
-        )
-        if float(np.median(seen)) > near + step_m:
-            return True
-    return False
+    return any(
+        _behind(home, parts == part, to_home, ranges, step_m) is not None
+        for part in np.unique(parts[others]).tolist()
+    )
 
 
 def still_time(pace: float, still_s: float, gate_m: float) -> float | None:

@@ -11,13 +11,13 @@ background with how far it stands out in front of the empty-scene range model
 stands out and no track can claim, two frames running, becomes a new track
 (`tofcut.tracker.roster`, on the pieces of what stands out: `tofcut.tracker.pieces`). Rigid
 objects on a belt: a track holding two touching surfaces (a step apart, or two tops at
-different heights: `tofcut.tracker.tops`) for a few frames has them dealt out again (two
-objects that came into view as one), two tracks that meet at a convex edge with no step are
-faces of one object and become one, a track that stays put while the belt runs becomes
-scenery, and what lies beside a belt of known width, or flat on a belt laid anew, is no
-object. A mask's rim, pixels read between the object and the scenery behind it, is given
-to the track whose range it is nearer, and a notch in it to the track round it
-(`tofcut.tracker.rims`). Each pixel's range noise
+different heights: `tofcut.tracker.tops`), or two parts with the belt seen between them, for
+a few frames has them dealt out again (two objects that came into view as one), two tracks
+that meet at a convex edge with no step are faces of one object and become one, a track that
+stays put while the belt runs becomes scenery, and what lies beside a belt of known width,
+or flat on a belt laid anew, is no object. A mask's rim, pixels read between the object and
+the scenery behind it, is given to the track whose range it is nearer, and a notch in it to
+the track round it (`tofcut.tracker.rims`). Each pixel's range noise
 (`tofcut.tracker.noise`) scales what counts as near on far, dark targets. The belt is given
 (`Tracker(belt=...)`) or set when it becomes known (`tracker.belt = ...`, as the run's belt
 holder does with a belt found from the frames, `tofcut.tracker.belt_finder`).
