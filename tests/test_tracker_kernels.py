@@ -223,12 +223,14 @@ def test_pieces_are_numbered_as_scipy_labels_them():
     )
 
 
+def _images(dtype: type, most: int) -> st.SearchStrategy[np.ndarray]:
+    """Small 2D images of `dtype` holding the numbers 0 to `most`: labels, or pieces."""
+    shapes = hnp.array_shapes(min_dims=2, max_dims=2, max_side=30)
+    return hnp.arrays(dtype, shapes, elements=st.integers(0, most))
+
+
 @settings(max_examples=200, deadline=None)
-@given(
-    hnp.arrays(
-        np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 3)
-    )
-)
+@given(_images(np.uint16, 3))
 def test_each_labels_regions_are_scipys_8_connected_pieces_with_their_sizes(labels):
     from scipy import ndimage
 
@@ -265,11 +267,7 @@ def test_point_stats_are_numpys_mean_min_and_max():
 
 
 @settings(max_examples=200, deadline=None)
-@given(
-    hnp.arrays(
-        np.int32, hnp.array_shapes(min_dims=2, max_dims=2, max_side=30), elements=st.integers(0, 9)
-    )
-)
+@given(_images(np.int32, 9))
 def test_piece_boxes_sizes_and_holdings_are_scipys_and_numpys(pieces):
     from scipy import ndimage
 
