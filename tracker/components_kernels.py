@@ -111,9 +111,9 @@ def label_regions(labels: U16) -> I32:
 
 
 @kernel((U16_2D,))
-def region_sizes(labels: U16) -> tuple[I64, I64]:
-    """Of each label's 8-connected regions (`label_regions`), numbered from 1: the label each
-    belongs to and its pixels (entry 0 is no region)."""
+def region_sizes(labels: U16) -> tuple[I32, I64, I64]:
+    """Each label's 8-connected regions (`label_regions`), numbered from 1, and of each the
+    label it belongs to and its pixels (entry 0 is no region)."""
     regions = label_regions(labels)
     h, w = labels.shape
     n = 0
@@ -128,7 +128,7 @@ def region_sizes(labels: U16) -> tuple[I64, I64]:
             if r:
                 owner[r] = labels[v, u]
                 sizes[r] += 1
-    return owner, sizes
+    return regions, owner, sizes
 
 
 @helper

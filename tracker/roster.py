@@ -412,13 +412,17 @@ class Roster:
         p = self.params
         if not p.rigid or not self.tracks or not background.ready:
             return []
-        parted = _parted(labels, p)
-        born = []
+        regions, owner, large = _large_regions(labels, p)
+        # the tracks whose masks hold two large regions or more
+        parted = np.bincount(owner[large]) >= 2
+        born: list[int] = []
         for t in list(self.tracks):
             apart = np.zeros(0, np.int64)
             if t.id < parted.size and parted[t.id]:
-                box = _box_of(labels == t.id)
-                parts, big = _large_parts(labels, box, t.id, p)
+                mask = labels == t.id
+                box = _box_of(mask)
+                parts = np.where(mask[box], regions[box], 0)
+                big = np.nonzero(large & (owner == t.id))[0]
                 bg = background
                 nearer = np.where(
                     frame.valid[box] & bg.known[box], bg.range[box] - seen[box], np.nan
@@ -435,9 +439,9 @@ class Roster:
             for r in apart.tolist():
                 part = parts == r
                 pts = frame.xyz[box][part]
-                owner = self._claimant(others, pts, noise[box][part])
-                if owner is not None:  # more of an object another track follows
-                    window[part] = owner.id
+                claimant = self._claimant(others, pts, noise[box][part])
+                if claimant is not None:  # more of an object another track follows
+                    window[part] = claimant.id
                     continue
                 shape = shape_of(pts, SHAPE_FLOOR_M, belt)
                 window[part] = self._start(pts, shape, t.filter.velocity)
@@ -650,31 +654,16 @@ def _box_of(mask: B) -> tuple[slice, slice]:
     return slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1)
 
 
-def _least_part(pixels: I64 | int, p: TrackerParams) -> I64:
-    """The fewest pixels a part of a mask of `pixels` must hold to be an object of its own:
-    `min_pixels`, and `split_share` of the mask or `split_pixels`."""
-    least: I64 = np.maximum(p.min_pixels, np.minimum(p.split_share * pixels, p.split_pixels))
-    return least
-
-
-def _parted(labels: U16, p: TrackerParams) -> B:
-    """By track id, whether its mask is in two large parts or more (`_least_part`), all
-    tracks at once (`components_kernels.region_sizes`)."""
-    owner, sizes = components_kernels.region_sizes(labels)  # each region's track and size
-    pixels = np.bincount(owner, weights=sizes)  # each track's
-    large = sizes >= _least_part(pixels[owner], p)
+def _large_regions(labels: U16, p: TrackerParams) -> tuple[I32, I64, B]:
+    """Every track's mask in its 8-connected regions, all at once
+    (`components_kernels.region_sizes`): the regions (numbered from 1), each region's track,
+    and whether it is large enough to be an object of its own: `min_pixels`, and
+    `split_share` of its track's mask or `split_pixels`."""
+    regions, owner, sizes = components_kernels.region_sizes(labels)
+    pixels = np.bincount(owner, weights=sizes)[owner]  # of each region's track
+    large = sizes >= np.maximum(p.min_pixels, np.minimum(p.split_share * pixels, p.split_pixels))
     large[0] = False
-    parted: B = np.bincount(owner[large]) >= 2
-    return parted
-
-
-def _large_parts(labels: U16, box: Box, track: int, p: TrackerParams) -> tuple[I32, I64]:
-    """A track's mask within its `box`, in 8-connected parts (numbered from 1, 0 elsewhere),
-    and the parts large enough to be an object of their own (`_least_part`)."""
-    parts, _ = ndimage.label(labels[box] == track, EIGHT)
-    sizes = np.bincount(parts.ravel())
-    sizes[0] = 0
-    return parts, np.nonzero(sizes >= _least_part(int(sizes.sum()), p))[0]
+    return regions, owner, large
 
 
 def _scenery_between(
