@@ -340,3 +340,53 @@ def test_a_part_another_track_follows_goes_to_that_track():
     assert [t.id for t in roster.tracks] == [1, 2]
     assert (labels[left] == 1).all()
     assert (labels[right] == 2).all()
+
+
+# --- a small object's top in a big track's mask ----------------------------------------------
+
+
+def _pressed(low: np.ndarray) -> tuple[Frame, np.ndarray, np.ndarray]:
+    """A 20×40 view of a 20×22-pixel box 20 cm tall, pressed against a 10×10-pixel surface
+    whose height `low` gives column by column: the box's mask and the surface's."""
+    depth = np.full((20, 40), BELT_RANGE_M)
+    box, other = np.zeros((20, 40), bool), np.zeros((20, 40), bool)
+    box[:, 2:24], other[5:15, 24:34] = True, True
+    depth[box] = BELT_RANGE_M - 0.2
+    depth[5:15, 24:34] = BELT_RANGE_M - low
+    return Frame.from_arrays(time_s=0.0, depth_m=depth, intrinsics=_LENS), box, other
+
+
+@pytest.mark.parametrize(
+    ("low", "dealt"),
+    [
+        (np.full(10, 0.08), True),  # a low box's top: it faces up, at its own height
+        (np.linspace(0.17, 0.03, 10), False),  # a face falling away: it does not face up
+        (np.r_[0.1, np.full(9, 0.2)], False),  # the box's own top beyond a rim: one height
+    ],
+)
+def test_a_small_top_pressed_against_a_big_box_in_its_track_is_dealt_out(low, dealt):
+    # 100 pixels of 540 (90 once a step's seam is cut): under `split_share` and `split_pixels`
+    frame, box, other = _pressed(low)
+    roster, labels = _one_track_on(frame, box | other)
+    noise = np.full((20, 40), 0.005)
+    born = [roster._reconcile(frame, labels, noise, _belt(None)) for _ in range(3)]
+    assert born[:2] == [[], []]  # not before it held both `split_frames` frames
+    if dealt:
+        assert born[2] == [2]
+        assert (labels[box] == 1).all()
+        # all of the low top but the seam its step leaves, which stays where the cut put it
+        assert (labels[5:15, 25:34] == 2).all()
+    else:
+        assert born[2] == []
+        assert (labels[box | other] == 1).all()
+
+
+def test_a_small_top_two_tracks_share_goes_whole_to_the_one_holding_most():
+    frame, box, other = _pressed(np.full(10, 0.08))
+    roster, labels = _one_track_on(frame, box | other)
+    roster._start(frame.xyz[other], np.eye(3) * 0.01)
+    labels[5:15, 29:34] = 2  # track 2 holds most of the low top, track 1 the rest
+    noise = np.full((20, 40), 0.005)
+    assert all(roster._reconcile(frame, labels, noise, _belt(None)) == [] for _ in range(3))
+    assert (labels[box] == 1).all()
+    assert (labels[5:15, 25:34] == 2).all()

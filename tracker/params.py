@@ -69,7 +69,9 @@ class TrackerParams:
     """A track whose mask holds two surfaces (apart by `connect_m` steps), the smaller at
     least this share of it or `split_pixels`, holds two objects..."""
     split_pixels: int = 100
-    """...(a box coming into view beside a bigger one is a small share of their mask)..."""
+    """...(a box coming into view beside a bigger one is a small share of their mask), or
+    is an object's top that faces up and lies mostly in the track (`roster._own_tops`: a low
+    box pressed against a tall one)..."""
     split_frames: int = 3
     """...when it does so this many frames running: the surfaces are then dealt out again."""
     rigid: bool = True
@@ -118,6 +120,12 @@ class TrackerParams:
             raise SegmentError("confirm_frames and min_pixels must be at least 1")
         if not 0.0 < self.whole_fraction <= 1.0:
             raise SegmentError("whole_fraction must be in (0, 1]")
+
+    @property
+    def claim_distance(self) -> float:
+        """The distance cost (eq. 6, before β) under which a track can win a pixel that stands
+        out as far as the background's cost allows: what a track can claim."""
+        return (self.background_cap - self.object_cost) / self.beta
 
 
 def _floats(params: object) -> dict[str, Any]:

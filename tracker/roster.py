@@ -353,6 +353,9 @@ class Roster:
         big = (held >= p.min_pixels) & (
             held >= np.minimum(p.split_share * size[:, None], p.split_pixels)
         )
+        small = (held >= p.min_pixels) & ~big
+        if belt is not None and small.any():
+            big |= self._own_tops(small, pieces, labels, frame, noise, belt)
         splitting = []
         many = big.sum(axis=1) >= 2
         for k, t in enumerate(self.tracks):
@@ -391,6 +394,28 @@ class Roster:
                 continue
             t.restart(pts, belt)
         return born
+
+    def _own_tops(
+        self, small: B, pieces: I32, labels: U16, frame: Frame, noise: F64, belt: BeltGeometry
+    ) -> B:
+        """Of the `small` surfaces (by track and piece, as `_reconcile` holds them: under
+        `split_share` of their track and `split_pixels`), those that are an object's top:
+        half of the surface or more faces up (`tops.facing_up`), at a height apart from the
+        top of the rest of the track's mask (`tops.heights_apart`). A low box pressed
+        against a tall one is a small share of their track; the tall one's side face does
+        not face up, and a top that noise or a rim breaks up stands at one height."""
+        out = np.zeros(small.shape, bool)
+        up = facing_up(labels > 0, frame.xyz, noise, belt)
+        if up is None:
+            return out
+        whole = np.bincount(pieces.ravel())
+        facing = 2 * np.bincount(pieces[up], minlength=whole.size) >= whole
+        for k, r in zip(*np.nonzero(small & facing[None, :]), strict=True):
+            piece = pieces == r
+            mine = _top(piece & up, frame.xyz, noise, belt)
+            rest = _top((labels == self.tracks[k].id) & ~piece & up, frame.xyz, noise, belt)
+            out[k, r] = mine is not None and rest is not None and bool(heights_apart(*mine, *rest))
+        return out
 
     def _part(
         self,
@@ -457,7 +482,7 @@ class Roster:
             return None
         near = np.median(self.cut.distances(tracks, points, noise), axis=1)
         k = int(np.argmin(near))
-        return tracks[k] if near[k] < (p.background_cap - p.object_cost) / p.beta else None
+        return tracks[k] if near[k] < p.claim_distance else None
 
     def _continuing(
         self,
@@ -504,7 +529,6 @@ class Roster:
         fringe of that track, not a new object; one beside the belt (`_beside`), none."""
         p = self.params
         sizes = measure_kernels.piece_sizes(pieces)
-        claim = (p.background_cap - p.object_cost) / p.beta
         found = []
         for r in np.nonzero(sizes >= p.min_pixels)[0]:
             if r == 0:
@@ -519,7 +543,7 @@ class Roster:
             if (
                 self.tracks
                 and np.median(self.cut.distances(self.tracks, pts, noise[piece]).min(axis=0))
-                < claim
+                < p.claim_distance
             ):
                 continue
             found.append((centroid, pts, piece))
