@@ -70,8 +70,8 @@ class TrackerParams:
     least this share of it or `split_pixels`, holds two objects..."""
     split_pixels: int = 100
     """...(a box coming into view beside a bigger one is a small share of their mask), or
-    is an object's top that faces up and lies mostly in the track (`roster._own_tops`: a low
-    box pressed against a tall one)..."""
+    is an object's top, facing up at a height apart from the rest of the track's top
+    (`roster._own_tops`: a low box pressed against a tall one)..."""
     split_frames: int = 3
     """...when it does so this many frames running: the surfaces are then dealt out again."""
     rigid: bool = True
